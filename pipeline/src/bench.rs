@@ -1,0 +1,125 @@
+//! `pipeline bench ...`: benchmarks that print figures (speed goals live here, not in tests).
+//!
+//! `bench sim` runs, in one process and on the same tasks and actions:
+//! the Rust env in both step modes, raw MuJoCo (`mj_step` × 25 per env step, zero controls: the
+//! physical limit), and the Python reference env (`scripts/reference/bench_reference.py` in the
+//! reference venv), and prints env steps per second side by side.
+
+use anyhow::{Context, Result, bail};
+use libero_schema::Suite;
+use libero_sim::bundle::BundleSet;
+use libero_sim::env::{LiberoEnv, StepMode};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Instant;
+
+#[derive(clap::Subcommand)]
+pub enum Bench {
+    /// Env steps/s: Rust env vs the Python reference vs raw MuJoCo (no rendering).
+    Sim(SimArgs),
+}
+
+#[derive(clap::Args)]
+pub struct SimArgs {
+    /// Env steps per task (after reset).
+    #[arg(long, default_value_t = 300)]
+    steps: u32,
+    /// Suites to measure (task 0 of each).
+    #[arg(long, value_delimiter = ',', default_value = "libero_spatial,libero_object,libero_goal,libero_10")]
+    suites: Vec<Suite>,
+    /// Python of the reference venv; `none` skips the reference measurement.
+    #[arg(long, default_value = ".venv/bin/python")]
+    python: PathBuf,
+}
+
+pub fn run(bundles: &Path, bench: Bench) -> Result<()> {
+    match bench {
+        Bench::Sim(args) => sim(bundles, args),
+    }
+}
+
+/// The benchmark's action at step t: smooth motion plus gripper toggles (same formula in Python).
+pub fn bench_action(t: u32) -> [f64; 7] {
+    let t = t as f64;
+    [
+        0.5 * (0.1 * t).sin(),
+        0.5 * (0.13 * t).cos(),
+        0.3 * (0.07 * t).sin(),
+        0.1 * (0.05 * t).sin(),
+        0.1 * (0.05 * t).cos(),
+        0.1 * (0.03 * t).sin(),
+        if (0.2 * t).sin() >= 0.0 { 1.0 } else { -1.0 },
+    ]
+}
+
+fn sim(bundles: &Path, args: SimArgs) -> Result<()> {
+    let set = BundleSet::open(bundles)?;
+    println!("env steps/s, {} steps after reset(init 0, seed 0), no rendering, 1 thread", args.steps);
+    println!(
+        "{:<15} {:>12} {:>14} {:>12} {:>12} {:>10} {:>10}",
+        "suite", "rust split", "rust fwd+step", "raw mujoco", "python ref", "split/raw", "split/py"
+    );
+    for suite in &args.suites {
+        let bundle = set.load(*suite, 0)?;
+        let mut env = LiberoEnv::new(&bundle)?;
+        let mut rate = |mode| -> Result<f64> {
+            env.set_step_mode(mode);
+            env.reset(0, 0)?;
+            let t0 = Instant::now();
+            for t in 0..args.steps {
+                env.step(bench_action(t))?;
+            }
+            Ok(args.steps as f64 / t0.elapsed().as_secs_f64())
+        };
+        let split = rate(StepMode::Split)?;
+        let fwd = rate(StepMode::ForwardThenStep)?;
+        let raw = raw_mujoco_rate(&bundle, args.steps)?;
+        let py = if args.python.as_os_str() == "none" { None } else { Some(python_rate(&args.python, *suite, args.steps)?) };
+        println!(
+            "{:<15} {:>12.1} {:>14.1} {:>12.1} {:>12} {:>9.0}% {:>10}",
+            suite.name(),
+            split,
+            fwd,
+            raw,
+            py.map_or("-".into(), |p| format!("{p:.1}")),
+            100.0 * split / raw,
+            py.map_or("-".into(), |p| format!("{:.1}x", split / p)),
+        );
+    }
+    Ok(())
+}
+
+/// 25 bare `mj_step`s per env step from the same init state: what physics alone costs.
+fn raw_mujoco_rate(bundle: &libero_sim::bundle::TaskBundle, steps: u32) -> Result<f64> {
+    use libero_sim::scene;
+    let mut model = scene::compile(bundle)?;
+    scene::apply_fixture_poses(&mut model, bundle.fixture_poses(0, 0)?)?;
+    let mut data = mujoco_rs::prelude::MjData::new(&model);
+    let init = bundle.init_state(0)?;
+    let (nq, nv) = (model.ffi().nq as usize, model.ffi().nv as usize);
+    data.qpos_mut().copy_from_slice(&init[1..1 + nq]);
+    data.qvel_mut().copy_from_slice(&init[1 + nq..1 + nq + nv]);
+    data.forward();
+    let substeps = bundle.task.control.substeps;
+    let t0 = Instant::now();
+    for _ in 0..steps * substeps {
+        data.step();
+    }
+    Ok(steps as f64 / t0.elapsed().as_secs_f64())
+}
+
+fn python_rate(python: &Path, suite: Suite, steps: u32) -> Result<f64> {
+    let script = Path::new("scripts/reference/bench_reference.py");
+    let out = Command::new(python)
+        .arg(script)
+        .args([suite.name(), "0", &steps.to_string()])
+        .output()
+        .with_context(|| format!("running {} {} (the reference venv; see ./setup.sh)", python.display(), script.display()))?;
+    if !out.status.success() {
+        bail!("reference benchmark failed: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().rev().find(|l| l.starts_with('{')).context("no JSON line from bench_reference.py")?;
+    let v: serde_json::Value = serde_json::from_str(line)?;
+    v["steps_per_s"].as_f64().context("steps_per_s missing")
+}

@@ -1,0 +1,82 @@
+#!/usr/bin/env bash
+# One-command set-up on a fresh machine (Debian 12 image + package registries), idempotent and fast
+# when already done:
+#   1. Debian packages (EGL/Mesa for headless rendering, ffmpeg, a font) when run as root;
+#   2. MuJoCo 3.3.7 library + headers from the PyPI wheel (third_party/, for mujoco-rs 2.3.5);
+#   3. the Python reference LIBERO env (the oracle) in a cached venv, linked as .venv;
+#   4. the task bundles of the four suites, cached and linked as data/bundles;
+#   5. `cargo build --release` of the workspace.
+# Caches live in $LIBERO_EVAL_CACHE (default ~/.cache/libero-eval), keyed by the scripts that make them.
+# Options: --suites LIST (default: the four canonical suites; e.g. add libero_90), --no-build.
+set -euo pipefail
+ROOT="$(cd "$(dirname "$0")" && pwd)"
+cd "$ROOT"
+CACHE="${LIBERO_EVAL_CACHE:-$HOME/.cache/libero-eval}"
+SUITES="libero_spatial,libero_object,libero_goal,libero_10"
+BUILD=1
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --suites) SUITES="$2"; shift 2 ;;
+    --no-build) BUILD=0; shift ;;
+    *) echo "setup.sh: unknown option $1 (options: --suites LIST, --no-build)" >&2; exit 2 ;;
+  esac
+done
+t0=$(date +%s)
+step() { echo "==> $* ($(( $(date +%s) - t0 )) s)"; }
+
+step "Debian packages"
+PKGS="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libgles2 libosmesa6 ffmpeg fonts-dejavu-core unzip"
+if ! dpkg -s $PKGS >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ]; then
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $PKGS >/dev/null
+  else
+    echo "missing Debian packages; as root run: apt-get install $PKGS" >&2; exit 1
+  fi
+fi
+
+step "MuJoCo 3.3.7"
+bash scripts/setup/mujoco.sh third_party/mujoco-3.3.7
+
+step "reference venv (hf-libero 0.1.4, robosuite 1.4.0, mujoco 3.3.7)"
+VENV_KEY=$(cat scripts/setup/reference_venv.sh | sha256sum | cut -c1-12)
+VENV="$CACHE/ref-venv-$VENV_KEY"
+bash scripts/setup/reference_venv.sh "$VENV"
+ln -sfn "$VENV" .venv
+
+step "task bundles ($SUITES)"
+BUNDLE_KEY=$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py scripts/reference/libero_ref.py | sha256sum | cut -c1-12)
+BUNDLES="$CACHE/bundles-$BUNDLE_KEY"
+mkdir -p "$BUNDLES"
+missing=""
+for s in ${SUITES//,/ }; do
+  [ -f "$BUNDLES/.complete-$s" ] || missing="${missing:+$missing,}$s"
+done
+if [ -n "$missing" ]; then
+  (cd scripts/reference && "$VENV/bin/python" build_bundles.py "$BUNDLES" --suites "$missing" \
+      2> >(grep -v "WARNING\|^\[info\]" >&2))
+  for s in ${missing//,/ }; do touch "$BUNDLES/.complete-$s"; done
+fi
+mkdir -p data
+ln -sfn "$BUNDLES" data/bundles
+
+step "golden reference trajectories for the parity tests"
+GOLDEN_KEY=$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py scripts/reference/libero_ref.py scripts/reference/golden.py | sha256sum | cut -c1-12)
+GOLDEN="$CACHE/golden-$GOLDEN_KEY"
+missing=""
+for s in ${SUITES//,/ }; do
+  case "$s" in libero_spatial|libero_object|libero_goal|libero_10) ;; *) continue ;; esac
+  [ -f "$GOLDEN/.complete-$s" ] || missing="${missing:+$missing,}$s"
+done
+if [ -n "$missing" ]; then
+  mkdir -p "$GOLDEN"
+  (cd scripts/reference && "$VENV/bin/python" golden.py "$GOLDEN" --suites "$missing" 2> >(grep -v "WARNING\|^\[info\]" >&2) >/dev/null)
+  for s in ${missing//,/ }; do touch "$GOLDEN/.complete-$s"; done
+fi
+ln -sfn "$GOLDEN" data/golden
+
+if [ "$BUILD" = 1 ]; then
+  step "cargo build --release"
+  cargo build --release --quiet
+fi
+step "set-up done: bundles in data/bundles -> $BUNDLES"

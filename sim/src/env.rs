@@ -1,0 +1,360 @@
+//! [`LiberoEnv`]: one LIBERO task on MuJoCo, stepped at 20 Hz exactly as the reference steps it.
+//!
+//! One env step (`robosuite/environments/base.py:361-404` + LIBERO's `step`):
+//! for each of 25 substeps of 2 ms: refresh kinematics, on the first substep set the OSC goal from
+//! the action, compute arm torques (clipped to the actuator ranges) and gripper controls, then
+//! `mj_step`. After the last substep the BDDL goal is evaluated on the data `mj_step` left (body
+//! positions and contacts of its forward pass, joint positions after integration).
+//!
+//! The reference refreshes kinematics with `mj_forward` before each `mj_step`, which then computes
+//! the same forward pass again. [`StepMode::Split`] (the default) uses MuJoCo's
+//! `mj_step1`/`mj_step2` split instead: controls are computed between the position/velocity
+//! stages and the acceleration/integration stages, skipping the duplicate; the parity test
+//! checks both modes against the reference.
+
+use crate::SimError;
+use crate::bundle::{Pose, TaskBundle};
+use crate::gripper::Gripper;
+use crate::osc::{ARM_DOF, ArmState, OscController};
+use crate::predicates::{Goal, GoalStatus};
+use crate::scene::{self, object_id};
+use mujoco_rs::mujoco_c;
+use mujoco_rs::prelude::*;
+use nalgebra::{Matrix3, SVector, Vector3};
+use std::ops::Deref;
+
+/// How each physics substep computes the controls.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum StepMode {
+    /// `mj_step1`, controls, `mj_step2`: one forward pass per substep.
+    #[default]
+    Split,
+    /// `mj_forward`, controls, `mj_step`: the reference's call sequence (two forward passes).
+    ForwardThenStep,
+}
+
+/// A pointer to the env's boxed model, so `MjData` can borrow it while the env can still edit
+/// fixture poses between episodes. The box outlives the data (field order in [`LiberoEnv`]).
+struct ModelPtr(*const MjModel);
+impl Deref for ModelPtr {
+    type Target = MjModel;
+    fn deref(&self) -> &MjModel {
+        unsafe { &*self.0 }
+    }
+}
+unsafe impl Send for ModelPtr {}
+
+/// What one env step returns.
+#[derive(Debug, Clone)]
+pub struct StepOutcome {
+    /// Env steps taken since reset, this one included.
+    pub step: u32,
+    pub goal: GoalStatus,
+}
+
+/// Robot and object state after a step, as observations and per-step records need it.
+#[derive(Debug, Clone)]
+pub struct Observation {
+    /// End-effector (grip site) position, world frame.
+    pub eef_pos: [f64; 3],
+    /// End-effector orientation as a quaternion (w, x, y, z) of the grip site frame.
+    pub eef_quat: [f64; 4],
+    /// The two finger joint positions.
+    pub gripper_qpos: [f64; 2],
+    pub joint_pos: [f64; ARM_DOF],
+    pub joint_vel: [f64; ARM_DOF],
+    /// Root-body pose of every object and fixture, in `object_names()` order.
+    pub object_poses: Vec<Pose>,
+}
+
+pub struct LiberoEnv {
+    // Field order matters: `data` borrows `model` through a raw pointer and must drop first.
+    data: MjData<ModelPtr>,
+    model: Box<MjModel>,
+    bundle: TaskBundle,
+    goal: Goal,
+    mode: StepMode,
+    osc: OscController,
+    gripper: Gripper,
+    reset_snapshot: ArmState,
+    /// `Some` between reset and the first substep: robosuite's stale controller cache.
+    stale: Option<ArmState>,
+    eef_site: usize,
+    qpos_index: [usize; ARM_DOF],
+    qvel_index: [usize; ARM_DOF],
+    arm_actuators: [usize; ARM_DOF],
+    arm_ctrlrange: [[f64; 2]; ARM_DOF],
+    gripper_actuators: [usize; 2],
+    gripper_ctrlrange: [[f64; 2]; 2],
+    gripper_qpos: [usize; 2],
+    object_bodies: Vec<(String, usize)>,
+    substeps: u32,
+    horizon: u32,
+    steps: u32,
+    episode_ready: bool,
+    jacp: Vec<f64>,
+    jacr: Vec<f64>,
+    full_m: Vec<f64>,
+}
+
+impl LiberoEnv {
+    /// Compile the bundle's scene (fixtures at their XML poses until [`reset`](Self::reset)).
+    pub fn new(bundle: &TaskBundle) -> Result<Self, SimError> {
+        let model = Box::new(scene::compile(bundle)?);
+        let data = MjData::new(ModelPtr(&*model as *const MjModel));
+        let task = &bundle.task;
+        let c = &task.controller;
+        let arr7 = |v: &Vec<usize>, what: &str| -> Result<[usize; ARM_DOF], SimError> {
+            v.as_slice().try_into().map_err(|_| SimError::BundleCorrupt {
+                path: bundle.dir.join("task.json"),
+                detail: format!("controller.{what} has {} entries, the Panda arm has {ARM_DOF}", v.len()),
+            })
+        };
+        let qpos_index = arr7(&c.qpos_index, "qpos_index")?;
+        let qvel_index = arr7(&c.qvel_index, "qvel_index")?;
+        let arm_actuators = arr7(&c.arm_actuators, "arm_actuators")?;
+        let gripper_actuators: [usize; 2] = c.gripper_actuators.as_slice().try_into().map_err(|_| {
+            SimError::BundleCorrupt { path: bundle.dir.join("task.json"), detail: "two gripper actuators expected".into() }
+        })?;
+        let ctrlrange = model.actuator_ctrlrange();
+        let arm_ctrlrange = arm_actuators.map(|a| ctrlrange[a]);
+        let gripper_ctrlrange = gripper_actuators.map(|a| ctrlrange[a]);
+        let eef_site = object_id(&model, MjtObj::mjOBJ_SITE, &c.eef_site, "site")?;
+        // The finger joints are the gripper actuators' transmission targets.
+        let trnid = model.actuator_trnid();
+        let jnt_qposadr = model.jnt_qposadr();
+        let gripper_qpos = gripper_actuators.map(|a| jnt_qposadr[trnid[a][0] as usize] as usize);
+        let object_bodies = task
+            .objects
+            .iter()
+            .map(|(name, o)| Ok((name.clone(), scene::body_id(&model, &o.root_body)?)))
+            .collect::<Result<Vec<_>, SimError>>()?;
+        let goal = Goal::compile(task, &model)?;
+        let nv = model.ffi().nv as usize;
+        let reset_snapshot = ArmState::from_snapshot(c);
+        Ok(LiberoEnv {
+            data,
+            goal,
+            mode: StepMode::default(),
+            osc: OscController::new(c),
+            gripper: Gripper::new(c.gripper_speed, &c.gripper_current_action_after_reset),
+            reset_snapshot,
+            stale: None,
+            eef_site,
+            qpos_index,
+            qvel_index,
+            arm_actuators,
+            arm_ctrlrange,
+            gripper_actuators,
+            gripper_ctrlrange,
+            gripper_qpos,
+            object_bodies,
+            substeps: task.control.substeps,
+            horizon: task.control.horizon,
+            steps: 0,
+            episode_ready: false,
+            jacp: vec![0.0; 3 * nv],
+            jacr: vec![0.0; 3 * nv],
+            full_m: vec![0.0; nv * nv],
+            bundle: bundle.clone(),
+            model,
+        })
+    }
+
+    pub fn set_step_mode(&mut self, mode: StepMode) {
+        self.mode = mode;
+    }
+
+    pub fn bundle(&self) -> &TaskBundle {
+        &self.bundle
+    }
+
+    pub fn model(&self) -> &MjModel {
+        &self.model
+    }
+
+    /// The goal terms' BDDL text, in the order of [`GoalStatus::terms`].
+    pub fn goal_terms(&self) -> &[String] {
+        &self.goal.term_names
+    }
+
+    /// Object and fixture names, in the order of [`Observation::object_poses`].
+    pub fn object_names(&self) -> impl Iterator<Item = &str> {
+        self.object_bodies.iter().map(|(n, _)| n.as_str())
+    }
+
+    /// Start an episode as the reference loop does: `env.seed(seed)` once per task, one
+    /// `reset()` per episode, then `set_init_state(init_states[init_state_id])`. The fixture
+    /// poses are those of episode `init_state_id` after `env.seed(seed)` (the canonical protocol
+    /// runs trial i on init state i).
+    pub fn reset(&mut self, init_state_id: usize, seed: u64) -> Result<GoalStatus, SimError> {
+        let state = self.bundle.init_state(init_state_id)?.to_vec();
+        let poses = self.bundle.fixture_poses(seed, init_state_id)?.clone();
+        self.reset_to(&poses, &state)
+    }
+
+    /// Reset with explicit fixture poses and a `[time, qpos, qvel]` state.
+    pub fn reset_to(
+        &mut self,
+        fixture_poses: &std::collections::BTreeMap<String, Pose>,
+        state: &[f64],
+    ) -> Result<GoalStatus, SimError> {
+        let (nq, nv) = (self.model.ffi().nq as usize, self.model.ffi().nv as usize);
+        if state.len() != 1 + nq + nv {
+            return Err(SimError::Other(format!(
+                "state has {} values, this scene needs 1+nq+nv = {}",
+                state.len(),
+                1 + nq + nv
+            )));
+        }
+        scene::apply_fixture_poses(&mut self.model, fixture_poses)?;
+        // A hard reset builds fresh MjData: zero warm-start, controls and applied forces.
+        unsafe { mujoco_c::mj_resetData(self.model.ffi(), self.data_ptr()) };
+        self.data.set_time(state[0]);
+        self.data.qpos_mut().copy_from_slice(&state[1..1 + nq]);
+        self.data.qvel_mut().copy_from_slice(&state[1 + nq..]);
+        self.data.forward();
+        self.osc.reset();
+        self.gripper.reset();
+        self.stale = Some(self.reset_snapshot.clone());
+        self.steps = 0;
+        self.episode_ready = true;
+        Ok(self.goal.evaluate(&self.data))
+    }
+
+    /// One 20 Hz control step: delta eef position (3), delta orientation as axis-angle (3),
+    /// gripper (-1 open … +1 close); components are clipped to [-1, 1] and scaled to ±5 cm and
+    /// ±0.5 rad. Non-finite actions and unstable physics are errors, never panics.
+    pub fn step(&mut self, action: [f64; 7]) -> Result<StepOutcome, SimError> {
+        if !self.episode_ready {
+            return Err(SimError::Other("step() before reset(): call reset(init_state_id, seed) first".into()));
+        }
+        if let Some(i) = action.iter().position(|x| !x.is_finite()) {
+            return Err(SimError::InvalidAction {
+                action: action.to_vec(),
+                reason: format!("component {i} is not finite"),
+            });
+        }
+        if self.steps >= self.horizon {
+            return Err(SimError::Other(format!(
+                "executing action in terminated episode (the reference horizon is {} steps)",
+                self.horizon
+            )));
+        }
+        let arm_action: [f64; 6] = std::array::from_fn(|i| action[i]);
+        for k in 0..self.substeps {
+            match self.mode {
+                StepMode::Split => unsafe { mujoco_c::mj_step1(self.model.ffi(), self.data_ptr()) },
+                StepMode::ForwardThenStep => self.data.forward(),
+            }
+            let s = match self.stale.take() {
+                Some(stale) => stale,
+                None => self.arm_state(),
+            };
+            if k == 0 {
+                self.osc.set_goal(&arm_action, &s);
+            }
+            let bias = SVector::<f64, ARM_DOF>::from_fn(|i, _| self.data.qfrc_bias()[self.qvel_index[i]]);
+            let tau = self.osc.torques(&s, &bias);
+            self.gripper.substep(action[6]);
+            let grip = self.gripper.controls(self.gripper_ctrlrange);
+            let ctrl = self.data.ctrl_mut();
+            for i in 0..ARM_DOF {
+                let [lo, hi] = self.arm_ctrlrange[i];
+                ctrl[self.arm_actuators[i]] = tau[i].clamp(lo, hi);
+            }
+            for i in 0..2 {
+                ctrl[self.gripper_actuators[i]] = grip[i];
+            }
+            match self.mode {
+                StepMode::Split => unsafe { mujoco_c::mj_step2(self.model.ffi(), self.data_ptr()) },
+                StepMode::ForwardThenStep => self.data.step(),
+            }
+        }
+        self.steps += 1;
+        self.check_stable()?;
+        Ok(StepOutcome { step: self.steps, goal: self.goal.evaluate(&self.data) })
+    }
+
+    /// Evaluate the goal on the current data (as `check_success()` would).
+    pub fn goal_status(&self) -> GoalStatus {
+        self.goal.evaluate(&self.data)
+    }
+
+    /// The full state `[time, qpos, qvel]`, the layout of the init states.
+    pub fn state(&self) -> Vec<f64> {
+        let mut s = Vec::with_capacity(1 + self.data.qpos().len() + self.data.qvel().len());
+        s.push(self.data.time());
+        s.extend_from_slice(self.data.qpos());
+        s.extend_from_slice(self.data.qvel());
+        s
+    }
+
+    pub fn observation(&self) -> Observation {
+        let d = &self.data;
+        let m = d.site_xmat()[self.eef_site];
+        let rot = Matrix3::from_row_slice(&m);
+        let q = nalgebra::UnitQuaternion::from_matrix(&rot);
+        let q = [q.w, q.i, q.j, q.k];
+        let (qpos, qvel) = (d.qpos(), d.qvel());
+        Observation {
+            eef_pos: d.site_xpos()[self.eef_site],
+            eef_quat: q,
+            gripper_qpos: self.gripper_qpos.map(|i| qpos[i]),
+            joint_pos: self.qpos_index.map(|i| qpos[i]),
+            joint_vel: self.qvel_index.map(|i| qvel[i]),
+            object_poses: self
+                .object_bodies
+                .iter()
+                .map(|&(_, b)| Pose { pos: d.xpos()[b], quat: d.xquat()[b] })
+                .collect(),
+        }
+    }
+
+    /// The arm state robosuite's `Controller.update()` caches.
+    fn arm_state(&mut self) -> ArmState {
+        let (m, d) = (self.model.ffi(), self.data.ffi());
+        let nv = m.nv as usize;
+        unsafe {
+            mujoco_c::mj_jacSite(m, d, self.jacp.as_mut_ptr(), self.jacr.as_mut_ptr(), self.eef_site as i32);
+            mujoco_c::mj_fullM(m, self.full_m.as_mut_ptr(), d.qM);
+        }
+        let qvel = self.data.qvel();
+        let full_vel = |jac: &[f64]| Vector3::from_fn(|r, _| (0..nv).map(|c| jac[r * nv + c] * qvel[c]).sum::<f64>());
+        let (vi, qi) = (self.qvel_index, self.qpos_index);
+        let x = self.data.site_xmat()[self.eef_site];
+        ArmState {
+            ee_pos: Vector3::from(self.data.site_xpos()[self.eef_site]),
+            ee_ori: Matrix3::from_row_slice(&x),
+            ee_pos_vel: full_vel(&self.jacp),
+            ee_ori_vel: full_vel(&self.jacr),
+            j_pos: nalgebra::SMatrix::from_fn(|r, c| self.jacp[r * nv + vi[c]]),
+            j_ori: nalgebra::SMatrix::from_fn(|r, c| self.jacr[r * nv + vi[c]]),
+            mass: nalgebra::SMatrix::from_fn(|r, c| self.full_m[vi[r] * nv + vi[c]]),
+            q: SVector::from_fn(|i, _| self.data.qpos()[qi[i]]),
+            dq: SVector::from_fn(|i, _| qvel[vi[i]]),
+        }
+    }
+
+    fn check_stable(&self) -> Result<(), SimError> {
+        let d = self.data.ffi();
+        let bad = [
+            (MjtWarning::mjWARN_BADQACC, "bad qacc (NaN/inf accelerations)"),
+            (MjtWarning::mjWARN_BADQVEL, "bad qvel"),
+            (MjtWarning::mjWARN_BADQPOS, "bad qpos"),
+        ];
+        for (w, what) in bad {
+            if d.warning[w as usize].number > 0 {
+                return Err(SimError::Unstable { step: self.steps, detail: format!("MuJoCo warning: {what}") });
+            }
+        }
+        if self.data.qpos().iter().chain(self.data.qvel()).any(|x| !x.is_finite()) {
+            return Err(SimError::Unstable { step: self.steps, detail: "non-finite state".into() });
+        }
+        Ok(())
+    }
+
+    fn data_ptr(&mut self) -> *mut mujoco_c::mjData {
+        unsafe { self.data.ffi_mut() }
+    }
+}

@@ -1,0 +1,42 @@
+//! # libero-sim
+//!
+//! The LIBERO environment on MuJoCo, in Rust, matching the Python reference (hf-libero 0.1.4 on
+//! robosuite 1.4.0) step for step. It owns:
+//!
+//! - [`bundle`]: loading a *task bundle* (scene MJCF, init states, fixture poses per seed and
+//!   episode, goal and object metadata), written at set-up by `scripts/reference/build_bundles.py`;
+//! - [`scene`]: compiling the bundle's scene and applying what the reference changes on the live
+//!   model (fixture poses per episode, site colours);
+//! - [`osc`] and [`gripper`]: robosuite's OSC_POSE controller and Panda gripper, quirks included;
+//! - [`predicates`]: the BDDL goal (On, In, Open, Close, TurnOn, TurnOff, Up) as LIBERO checks it;
+//! - [`env`]: the gym-shaped [`env::LiberoEnv`] tying them together at 20 Hz (25 substeps of 2 ms).
+//!
+//! It knows nothing of policies, Arrow or DataFusion.
+//!
+//! ```no_run
+//! use libero_sim::{bundle::BundleSet, env::LiberoEnv};
+//! let set = BundleSet::open("data/bundles")?;
+//! let bundle = set.load("libero_spatial".parse().unwrap(), 0)?;
+//! let mut env = LiberoEnv::new(&bundle)?;
+//! env.reset(0, 7)?;                               // init state 0, env seed 7
+//! let out = env.step([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0])?;
+//! println!("goal satisfied: {}", out.goal.satisfied);
+//! # Ok::<(), libero_sim::SimError>(())
+//! ```
+
+pub mod bundle;
+pub mod env;
+mod error;
+pub mod gripper;
+pub mod npy;
+pub mod osc;
+pub mod predicates;
+pub mod scene;
+
+pub use error::SimError;
+
+/// The MuJoCo library version this build is linked against (e.g. "3.3.7").
+pub fn mujoco_version() -> String {
+    let v = unsafe { mujoco_rs::mujoco_c::mj_version() };
+    format!("{}.{}.{}", v / 1000, (v / 10) % 100, v % 10)
+}

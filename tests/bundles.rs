@@ -1,0 +1,119 @@
+//! Every bundle loads and compiles in MuJoCo from Rust into the model the reference compiled:
+//! the same sizes (nq, nv, nbody, ngeom, ...), options and parameter arrays, and init states of
+//! length 1+nq+nv. Bad bundles fail with errors that say how to rebuild.
+
+use libero_e2e::{bundles, repo_root};
+use libero_schema::Suite;
+use libero_sim::bundle::{BundleSet, TaskBundle};
+use libero_sim::env::LiberoEnv;
+use libero_sim::{SimError, scene};
+
+#[test]
+fn every_canonical_task_has_a_bundle_that_compiles_to_the_reference_model() {
+    let set = bundles();
+    let mut n = 0;
+    for suite in Suite::CANONICAL {
+        for task_id in 0..10 {
+            let bundle = set.load(suite, task_id).unwrap();
+            let model = scene::compile(&bundle).unwrap();
+            let diffs = scene::compare_with_reference(&model, &bundle.reference_model().unwrap());
+            assert!(diffs.is_empty(), "{suite} task {task_id}: {diffs:#?}");
+            let (nq, nv) = (model.ffi().nq as usize, model.ffi().nv as usize);
+            assert_eq!(bundle.init_states.cols, 1 + nq + nv, "{suite} task {task_id}");
+            assert_eq!(bundle.init_states.rows, 50, "{suite} task {task_id}");
+            assert!(!bundle.task.instruction.is_empty() && !bundle.task.goal.is_empty());
+            assert_eq!(bundle.fixture_seeds(), vec![0, 7], "fixture poses for OpenVLA's and openpi's seeds");
+            assert!(bundle.task.cameras.iter().any(|c| c == "agentview"));
+            n += 1;
+        }
+    }
+    assert_eq!(n, 40);
+}
+
+#[test]
+fn fixture_poses_change_between_episodes_and_seeds_like_the_reference() {
+    let bundle = bundles().load(Suite::LiberoGoal, 0).unwrap();
+    let body = &bundle.task.fixture_bodies[0];
+    let p = |seed, ep| bundle.fixture_poses(seed, ep).unwrap()[body].pos;
+    assert_ne!(p(0, 0), p(0, 1), "each reset re-samples fixture poses");
+    assert_ne!(p(0, 0), p(7, 0), "the env seed changes them");
+    let err = bundle.fixture_poses(3, 0).unwrap_err().to_string();
+    assert!(err.contains("seed 3") && err.contains("[0, 7]"), "{err}");
+}
+
+#[test]
+fn instructions_come_from_the_bddl_language_tag() {
+    // The file name says "in the bowl"; the BDDL (and the published evaluations) say "on the bowl".
+    let b = bundles().load(Suite::LiberoGoal, 6).unwrap();
+    assert_eq!(b.task.name, "put_the_cream_cheese_in_the_bowl");
+    assert_eq!(b.task.instruction, "Put the cream cheese on the bowl");
+}
+
+fn copy_bundle(suite: Suite, task: u32) -> (tempdir::Dir, std::path::PathBuf) {
+    let src = bundles().root().join(format!("{}/{task:02}", suite.name()));
+    let dir = tempdir::Dir::new();
+    let dst = dir.0.join("bundle");
+    std::fs::create_dir_all(&dst).unwrap();
+    for f in std::fs::read_dir(&src).unwrap() {
+        let f = f.unwrap();
+        std::fs::copy(f.path(), dst.join(f.file_name())).unwrap();
+    }
+    (dir, dst)
+}
+
+mod tempdir {
+    pub struct Dir(pub std::path::PathBuf);
+    impl Dir {
+        pub fn new() -> Self {
+            let p = std::env::temp_dir().join(format!("libero-test-{}-{}", std::process::id(), rand_suffix()));
+            std::fs::create_dir_all(&p).unwrap();
+            Dir(p)
+        }
+    }
+    impl Drop for Dir {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+    fn rand_suffix() -> u64 {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        static N: AtomicU64 = AtomicU64::new(0);
+        N.fetch_add(1, Ordering::Relaxed)
+    }
+}
+
+#[test]
+fn missing_corrupt_or_foreign_bundles_say_how_to_rebuild() {
+    let missing = BundleSet::open(repo_root().join("no/such/bundles")).unwrap_err();
+    assert!(matches!(missing, SimError::BundleMissing { .. }) && missing.to_string().contains("./setup.sh"), "{missing}");
+
+    let (_d, dir) = copy_bundle(Suite::LiberoSpatial, 0);
+    std::fs::write(dir.join("task.json"), "{ not json").unwrap();
+    let corrupt = TaskBundle::load(&dir).unwrap_err();
+    assert!(corrupt.to_string().contains("task.json") && corrupt.to_string().contains("./setup.sh"), "{corrupt}");
+
+    let (_d2, dir2) = copy_bundle(Suite::LiberoSpatial, 0);
+    let prov = std::fs::read_to_string(dir2.join("provenance.json")).unwrap().replace("\"3.3.7\"", "\"3.2.3\"");
+    std::fs::write(dir2.join("provenance.json"), prov).unwrap();
+    let foreign = TaskBundle::load(&dir2).unwrap_err();
+    assert!(
+        matches!(foreign, SimError::BundleVersion { .. }) && foreign.to_string().contains("3.2.3"),
+        "{foreign}"
+    );
+
+    let (_d3, dir3) = copy_bundle(Suite::LiberoSpatial, 0);
+    std::fs::write(dir3.join("init_states.npy"), b"\x93NUMPY truncated").unwrap();
+    let npy = TaskBundle::load(&dir3).unwrap_err();
+    assert!(npy.to_string().contains("init_states.npy"), "{npy}");
+}
+
+#[test]
+fn unknown_tasks_and_init_states_list_what_exists() {
+    let set = bundles();
+    let err = set.load(Suite::LiberoSpatial, 10).unwrap_err().to_string();
+    assert!(err.contains("0, 1, 2") && err.contains("task 10"), "{err}");
+    let bundle = set.load(Suite::LiberoSpatial, 0).unwrap();
+    let mut env = LiberoEnv::new(&bundle).unwrap();
+    let err = env.reset(50, 0).unwrap_err().to_string();
+    assert!(err.contains("50 init states"), "{err}");
+}

@@ -1,0 +1,132 @@
+//! Parity of the Rust env with the Python reference (hf-libero 0.1.4 on robosuite 1.4.0, same
+//! MuJoCo 3.3.7), on golden data recorded by `scripts/reference/golden.py` at set-up:
+//! - trajectories: every task of the four suites, 3 init states, 80 steps (10 wait steps, then
+//!   smooth random motion with gripper toggles); the state after every step must match to 1e-6
+//!   and the goal (and each goal term) must be identical, in both step modes;
+//! - goal predicates on states where the goal *is* satisfied (objects placed, joints set): the
+//!   Rust predicates agree with the reference on every term.
+
+use libero_e2e::{bundles, golden_dir, read_npy};
+use libero_schema::Suite;
+use libero_sim::env::{LiberoEnv, StepMode};
+use std::path::PathBuf;
+
+const STATE_TOLERANCE: f64 = 1e-6;
+
+struct Golden {
+    dir: PathBuf,
+    suite: Suite,
+    task_id: u32,
+    init: usize,
+}
+
+fn golden_episodes(kind: &str) -> Vec<Golden> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(golden_dir()).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().to_string();
+        let parts: Vec<&str> = name.split("__").collect();
+        if parts.len() != 3 || !parts[2].starts_with(kind) {
+            continue;
+        }
+        let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path.join("meta.json")).unwrap()).unwrap();
+        out.push(Golden {
+            suite: parts[0].parse().unwrap(),
+            task_id: parts[1].parse().unwrap(),
+            init: meta["init_state_id"].as_u64().unwrap() as usize,
+            dir: path,
+        });
+    }
+    out.sort_by_key(|g| (g.suite, g.task_id, g.init));
+    out
+}
+
+/// Replay one golden episode; returns (max |Δ qpos,qvel| over all steps, max |Δ eef|, goal mismatches).
+fn replay(g: &Golden, mode: StepMode) -> (f64, f64, Vec<String>) {
+    let bundle = bundles().load(g.suite, g.task_id).unwrap();
+    let mut env = LiberoEnv::new(&bundle).unwrap();
+    env.set_step_mode(mode);
+    env.reset(g.init, 0).unwrap();
+    let (actions, states, eef, goal) =
+        ["actions", "states", "eef", "goal"].map(|n| read_npy(&g.dir.join(format!("{n}.npy"))));
+    let (mut worst_state, mut worst_eef, mut mismatches) = (0.0f64, 0.0f64, Vec::new());
+    for t in 0..actions.rows {
+        let a: [f64; 7] = actions.row(t).try_into().unwrap();
+        let out = env.step(a).unwrap();
+        let ours = env.state();
+        let theirs = states.row(t);
+        assert_eq!(ours[0], theirs[0], "time differs at step {t}");
+        let d = ours[1..].iter().zip(&theirs[1..]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        worst_state = worst_state.max(d);
+        let obs = env.observation();
+        let e = eef.row(t);
+        worst_eef = worst_eef.max((0..3).map(|i| (obs.eef_pos[i] - e[i]).abs()).fold(0.0, f64::max));
+        let expected: Vec<bool> = goal.row(t).iter().map(|&x| x == 1.0).collect();
+        let mut got = vec![out.goal.satisfied];
+        got.extend(&out.goal.terms);
+        if got != expected {
+            mismatches.push(format!("step {}: goal ours {got:?} reference {expected:?}", t + 1));
+        }
+    }
+    (worst_state, worst_eef, mismatches)
+}
+
+fn check_all(mode: StepMode) {
+    let episodes = golden_episodes("init");
+    assert!(episodes.len() >= 120, "expected 40 tasks x 3 init states of golden data, found {}", episodes.len());
+    let results: Vec<_> = std::thread::scope(|s| {
+        let chunks: Vec<_> = episodes.chunks(episodes.len().div_ceil(2)).collect();
+        let handles: Vec<_> =
+            chunks.into_iter().map(|c| s.spawn(move || c.iter().map(|g| (g, replay(g, mode))).collect::<Vec<_>>())).collect();
+        handles.into_iter().flat_map(|h| h.join().unwrap()).collect()
+    });
+    let mut failures = Vec::new();
+    let mut overall = 0.0f64;
+    println!("{mode:?}: suite task init  max|Δstate|  max|Δeef|  goal");
+    for (g, (ds, de, mism)) in &results {
+        overall = overall.max(*ds);
+        println!("  {} {:>2} {} {:>12.3e} {:>10.3e} {}", g.suite, g.task_id, g.init, ds, de, if mism.is_empty() { "same" } else { "DIFF" });
+        if *ds > STATE_TOLERANCE || !mism.is_empty() {
+            failures.push(format!("{} task {} init {}: max|Δstate| {ds:e}, {:?}", g.suite, g.task_id, g.init, mism));
+        }
+    }
+    println!("{mode:?}: max |Δ state| over {} episodes: {overall:e}", results.len());
+    assert!(failures.is_empty(), "parity failures ({mode:?}):\n{}", failures.join("\n"));
+}
+
+#[test]
+fn trajectories_match_the_reference_in_split_step_mode() {
+    check_all(StepMode::Split);
+}
+
+#[test]
+fn trajectories_match_the_reference_in_forward_then_step_mode() {
+    check_all(StepMode::ForwardThenStep);
+}
+
+#[test]
+fn goal_predicates_agree_with_the_reference_on_goal_states() {
+    let sets = golden_episodes("goal_states");
+    assert_eq!(sets.len(), 40, "goal-state sets for the 40 tasks");
+    let mut satisfied = 0;
+    let mut failures = Vec::new();
+    for g in &sets {
+        let bundle = bundles().load(g.suite, g.task_id).unwrap();
+        let mut env = LiberoEnv::new(&bundle).unwrap();
+        let poses = bundle.fixture_poses(0, g.init).unwrap().clone();
+        let (states, goal) = (read_npy(&g.dir.join("states.npy")), read_npy(&g.dir.join("goal.npy")));
+        for i in 0..states.rows {
+            let status = env.reset_to(&poses, states.row(i)).unwrap();
+            let expected: Vec<bool> = goal.row(i).iter().map(|&x| x == 1.0).collect();
+            let mut got = vec![status.satisfied];
+            got.extend(&status.terms);
+            satisfied += status.satisfied as usize;
+            if got != expected {
+                failures.push(format!("{} task {} state {i}: ours {got:?} reference {expected:?}", g.suite, g.task_id));
+            }
+        }
+    }
+    println!("goal states: {satisfied} satisfied, {} disagreements", failures.len());
+    assert!(satisfied > 500, "the goal states should mostly satisfy the goal ({satisfied})");
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}

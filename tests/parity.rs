@@ -47,7 +47,7 @@ fn replay(g: &Golden, mode: StepMode) -> (f64, f64, Vec<String>) {
     let mut env = LiberoEnv::new(&bundle).unwrap();
     env.set_step_mode(mode);
     env.reset(g.init, 0).unwrap();
-    let (actions, states, eef, goal) =
+    let [actions, states, eef, goal] =
         ["actions", "states", "eef", "goal"].map(|n| read_npy(&g.dir.join(format!("{n}.npy"))));
     let (mut worst_state, mut worst_eef, mut mismatches) = (0.0f64, 0.0f64, Vec::new());
     for t in 0..actions.rows {

@@ -60,6 +60,9 @@ def eef(env):
 
 
 def episode(env, init_state, n_steps, seed):
+    """One canonical episode: a hard reset (model rebuilt, robot, controller and gripper new), as
+    the published loops do, then set_init_state and the actions."""
+    env.env.hard_reset = True
     env.reset()
     env.set_init_state(init_state)
     acts = actions(n_steps, seed)
@@ -140,7 +143,6 @@ def record_task(job):
     suite, task_id, inits, n_steps, out = job
     b, task, bddl = L.task_of(suite, task_id)
     env = L.make_env(bddl)
-    env.env.hard_reset = False  # fixture poses are restored per episode below, as a hard reset would
     init_states = b.get_task_init_states(task_id)
     xml_poses = None
     summary = []
@@ -151,11 +153,13 @@ def record_task(job):
             xml_poses = {body: dict(pos=m0.body_pos[mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_BODY, body)].tolist(),
                                     quat=m0.body_quat[mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_BODY, body)].tolist())
                          for body in L.fixture_root_bodies(env)}
+        # Advance numpy's RNG past episodes 0..k-1 with cheap soft resets (the same draws as hard
+        # resets, verified by build_bundles.py), then the episode's own hard reset.
+        env.env.hard_reset = False
         env.seed(SEED)
         for _ in range(k):
             L.set_fixture_poses(env.sim.model._model, xml_poses)
             env.reset()
-        L.set_fixture_poses(env.sim.model._model, xml_poses)
         acts, states, eefs, goals = episode(env, init_states[k], n_steps, seed=1000 * task_id + k)
         d = os.path.join(out, f"{suite}__{task_id:02d}__init{k}")
         os.makedirs(d, exist_ok=True)
@@ -167,7 +171,7 @@ def record_task(job):
         summary.append(dict(init=k, any_success=bool(goals[:, 0].any())))
     # goal-satisfying states from init state 0
     env.seed(SEED)
-    L.set_fixture_poses(env.sim.model._model, xml_poses)
+    env.env.hard_reset = True
     gs = goal_states(env, init_states[0])
     if gs is not None:
         d = os.path.join(out, f"{suite}__{task_id:02d}__goal_states")

@@ -171,6 +171,7 @@ pub fn axis_angle_to_mat_f32(v: &[f64; 3]) -> Matrix3<f64> {
     let (s, c) = ((angle / 2.0).sin(), (angle / 2.0).cos());
     // (w, x, y, z) in float32
     let mut q = [c as f32, (axis[0] * s) as f32, (axis[1] * s) as f32, (axis[2] * s) as f32];
+    // numpy's float32 dot (OpenBLAS sdot accumulates in double): the correctly rounded sum.
     let n = q.iter().map(|&x| x as f64 * x as f64).sum::<f64>() as f32;
     if (n as f64) < f64::EPSILON * 4.0 {
         return Matrix3::identity();

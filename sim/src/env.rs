@@ -276,6 +276,16 @@ impl LiberoEnv {
         Ok(StepOutcome { step: self.steps, goal: self.goal.evaluate(&self.data) })
     }
 
+    /// [`step`](Self::step) for an action of runtime length (e.g. from a policy): anything but
+    /// 7 components is an [`SimError::InvalidAction`].
+    pub fn step_slice(&mut self, action: &[f64]) -> Result<StepOutcome, SimError> {
+        let a: [f64; 7] = action.try_into().map_err(|_| SimError::InvalidAction {
+            action: action.to_vec(),
+            reason: format!("expected 7 components (dpos 3, drot 3, gripper 1), got {}", action.len()),
+        })?;
+        self.step(a)
+    }
+
     /// Evaluate the goal on the current data (as `check_success()` would).
     pub fn goal_status(&self) -> GoalStatus {
         self.goal.evaluate(&self.data)

@@ -5,7 +5,7 @@
 #   2. MuJoCo 3.3.7 library + headers from the PyPI wheel (third_party/, for mujoco-rs 2.3.5);
 #   3. the Python reference LIBERO env (the oracle) in a cached venv, linked as .venv;
 #   4. the task bundles of the four suites, cached and linked as data/bundles;
-#   5. `cargo build --release` of the workspace.
+#   5. `cargo build --release` of the workspace, and a smoke run of real env steps on every suite.
 # Caches live in $LIBERO_EVAL_CACHE (default ~/.cache/libero-eval), keyed by the scripts that make them.
 # Options: --suites LIST (default: the four canonical suites; e.g. add libero_90), --no-build.
 set -euo pipefail
@@ -78,5 +78,7 @@ ln -sfn "$GOLDEN" data/golden
 if [ "$BUILD" = 1 ]; then
   step "cargo build --release"
   cargo build --release --quiet
+  step "smoke: task 0 of each suite, 30 real env steps, Rust vs raw MuJoCo"
+  ./target/release/pipeline bench sim --steps 30 --python none
 fi
 step "set-up done: bundles in data/bundles -> $BUNDLES"

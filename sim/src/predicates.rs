@@ -11,7 +11,6 @@ use crate::SimError;
 use crate::bundle::{ArticulationRule, TaskInfo};
 use crate::scene::object_id;
 use mujoco_rs::prelude::*;
-use std::collections::BTreeMap;
 use std::ops::Deref;
 
 /// One goal term, resolved to model ids.
@@ -191,13 +190,4 @@ fn in_contact<M: Deref<Target = MjModel>>(d: &MjData<M>, a: &Obj, b: &Obj) -> bo
         let has = |o: &Obj, g: usize| o.geoms.binary_search(&g).is_ok();
         (has(a, g1) && has(b, g2)) || (has(a, g2) && has(b, g1))
     })
-}
-
-/// Names of the objects a goal mentions, mapped to their root bodies (objects of interest first).
-pub fn goal_objects(task: &TaskInfo) -> BTreeMap<String, String> {
-    task.goal
-        .iter()
-        .flat_map(|t| t.iter().skip(1))
-        .filter_map(|n| task.objects.get(n).map(|o| (n.clone(), o.root_body.clone())))
-        .collect()
 }

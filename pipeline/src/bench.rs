@@ -1,8 +1,8 @@
 //! `pipeline bench ...`: benchmarks that print figures (speed goals live here, not in tests).
 //!
 //! `bench sim` runs, in one process and on the same tasks and actions:
-//! the Rust env in both step modes, raw MuJoCo (`mj_step` × 25 per env step, zero controls: the
-//! physical limit), and the Python reference env (`scripts/reference/bench_reference.py` in the
+//! the Rust env in both step modes, raw MuJoCo (`mj_step` × 25 per env step replaying the controls
+//! the Rust env computed: the same physics without the controller, the limit), and the Python reference env (`scripts/reference/bench_reference.py` in the
 //! reference venv), and prints env steps per second side by side.
 
 use anyhow::{Context, Result, bail};
@@ -30,6 +30,9 @@ pub struct SimArgs {
     /// Python of the reference venv; `none` skips the reference measurement.
     #[arg(long, default_value = ".venv/bin/python")]
     python: PathBuf,
+    /// Interleaved repetitions per measurement; the median is printed (shared machines are noisy).
+    #[arg(long, default_value_t = 5)]
+    repeats: usize,
 }
 
 pub fn run(bundles: &Path, bench: Bench) -> Result<()> {
@@ -54,7 +57,10 @@ pub fn bench_action(t: u32) -> [f64; 7] {
 
 fn sim(bundles: &Path, args: SimArgs) -> Result<()> {
     let set = BundleSet::open(bundles)?;
-    println!("env steps/s, {} steps after reset(init 0, seed 0), no rendering, 1 thread", args.steps);
+    println!(
+        "env steps/s, {} steps after reset(init 0, seed 0), no rendering, 1 thread, median of {}",
+        args.steps, args.repeats
+    );
     println!(
         "{:<15} {:>12} {:>14} {:>12} {:>12} {:>10} {:>10}",
         "suite", "rust split", "rust fwd+step", "raw mujoco", "python ref", "split/raw", "split/py"
@@ -62,7 +68,7 @@ fn sim(bundles: &Path, args: SimArgs) -> Result<()> {
     for suite in &args.suites {
         let bundle = set.load(*suite, 0)?;
         let mut env = LiberoEnv::new(&bundle)?;
-        let mut rate = |mode| -> Result<f64> {
+        let rate = |env: &mut LiberoEnv, mode| -> Result<f64> {
             env.set_step_mode(mode);
             env.reset(0, 0)?;
             let t0 = Instant::now();
@@ -71,9 +77,16 @@ fn sim(bundles: &Path, args: SimArgs) -> Result<()> {
             }
             Ok(args.steps as f64 / t0.elapsed().as_secs_f64())
         };
-        let split = rate(StepMode::Split)?;
-        let fwd = rate(StepMode::ForwardThenStep)?;
-        let raw = raw_mujoco_rate(&bundle, args.steps)?;
+        env.log_controls(true);
+        rate(&mut env, StepMode::Split)?;
+        let controls = env.log_controls(false).unwrap_or_default();
+        let (mut split, mut fwd, mut raw) = (vec![], vec![], vec![]);
+        for _ in 0..args.repeats.max(1) {
+            split.push(rate(&mut env, StepMode::Split)?);
+            fwd.push(rate(&mut env, StepMode::ForwardThenStep)?);
+            raw.push(raw_mujoco_rate(&bundle, args.steps, &controls)?);
+        }
+        let (split, fwd, raw) = (median(split), median(fwd), median(raw));
         let py = if args.python.as_os_str() == "none" { None } else { Some(python_rate(&args.python, *suite, args.steps)?) };
         println!(
             "{:<15} {:>12.1} {:>14.1} {:>12.1} {:>12} {:>9.0}% {:>10}",
@@ -89,8 +102,14 @@ fn sim(bundles: &Path, args: SimArgs) -> Result<()> {
     Ok(())
 }
 
-/// 25 bare `mj_step`s per env step from the same init state: what physics alone costs.
-fn raw_mujoco_rate(bundle: &libero_sim::bundle::TaskBundle, steps: u32) -> Result<f64> {
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// 25 bare `mj_step`s per env step from the same init state, replaying the controls the Rust
+/// env computed: the same physics (same contacts) without the controller, what physics alone costs.
+fn raw_mujoco_rate(bundle: &libero_sim::bundle::TaskBundle, steps: u32, controls: &[f64]) -> Result<f64> {
     use libero_sim::scene;
     let mut model = scene::compile(bundle)?;
     scene::apply_fixture_poses(&mut model, bundle.fixture_poses(0, 0)?)?;
@@ -101,8 +120,11 @@ fn raw_mujoco_rate(bundle: &libero_sim::bundle::TaskBundle, steps: u32) -> Resul
     data.qvel_mut().copy_from_slice(&init[1 + nq..1 + nq + nv]);
     data.forward();
     let substeps = bundle.task.control.substeps;
+    let nu = model.ffi().nu as usize;
+    anyhow::ensure!(controls.len() == (steps * substeps) as usize * nu, "control log has the wrong length");
     let t0 = Instant::now();
-    for _ in 0..steps * substeps {
+    for ctrl in controls.chunks_exact(nu) {
+        data.ctrl_mut().copy_from_slice(ctrl);
         data.step();
     }
     Ok(steps as f64 / t0.elapsed().as_secs_f64())

@@ -95,6 +95,13 @@ pub struct LiberoEnv {
     jacp: Vec<f64>,
     jacr: Vec<f64>,
     full_m: Vec<f64>,
+    /// When `Some`, the controls of every substep are appended (for benchmarks that replay the
+    /// exact same physics without the controller).
+    control_log: Option<Vec<f64>>,
+    /// Per geom: index into `object_bodies` of the object whose contact geom it is.
+    geom_object: Vec<Option<u16>>,
+    /// Per geom: it belongs to a gripper body (`gripper0_*`, robosuite's naming).
+    geom_is_gripper: Vec<bool>,
 }
 
 impl LiberoEnv {
@@ -131,6 +138,21 @@ impl LiberoEnv {
             .collect::<Result<Vec<_>, SimError>>()?;
         let goal = Goal::compile(task, &model)?;
         let nv = model.ffi().nv as usize;
+        let ngeom = model.ffi().ngeom as usize;
+        let mut geom_object = vec![None; ngeom];
+        for (i, (name, _)) in object_bodies.iter().enumerate() {
+            for g in &task.objects[name].contact_geoms {
+                geom_object[object_id(&model, MjtObj::mjOBJ_GEOM, g, "geom")?] = Some(i as u16);
+            }
+        }
+        let geom_bodyid = model.geom_bodyid();
+        let geom_is_gripper = (0..ngeom)
+            .map(|g| {
+                model
+                    .id_to_name(MjtObj::mjOBJ_BODY, geom_bodyid[g])
+                    .is_some_and(|b| b.starts_with("gripper0_"))
+            })
+            .collect();
         let reset_snapshot = ArmState::from_snapshot(c);
         Ok(LiberoEnv {
             data,
@@ -156,6 +178,9 @@ impl LiberoEnv {
             jacp: vec![0.0; 3 * nv],
             jacr: vec![0.0; 3 * nv],
             full_m: vec![0.0; nv * nv],
+            control_log: None,
+            geom_object,
+            geom_is_gripper,
             bundle: bundle.clone(),
             model,
         })
@@ -163,6 +188,11 @@ impl LiberoEnv {
 
     pub fn set_step_mode(&mut self, mode: StepMode) {
         self.mode = mode;
+    }
+
+    /// Start (or stop, and return) logging the control vector of every physics substep.
+    pub fn log_controls(&mut self, on: bool) -> Option<Vec<f64>> {
+        std::mem::replace(&mut self.control_log, on.then(Vec::new))
     }
 
     pub fn bundle(&self) -> &TaskBundle {
@@ -266,6 +296,9 @@ impl LiberoEnv {
             for i in 0..2 {
                 ctrl[self.gripper_actuators[i]] = grip[i];
             }
+            if let Some(log) = &mut self.control_log {
+                log.extend_from_slice(self.data.ctrl());
+            }
             match self.mode {
                 StepMode::Split => unsafe { mujoco_c::mj_step2(self.model.ffi(), self.data_ptr()) },
                 StepMode::ForwardThenStep => self.data.step(),
@@ -284,6 +317,28 @@ impl LiberoEnv {
             reason: format!("expected 7 components (dpos 3, drot 3, gripper 1), got {}", action.len()),
         })?;
         self.step(a)
+    }
+
+    /// Indices (into [`object_names`](Self::object_names)) of the objects whose contact geoms touch
+    /// a gripper geom now, sorted and unique: the evidence of a grasp for failure analysis.
+    pub fn gripper_contacts(&self) -> Vec<usize> {
+        let mut out: Vec<usize> = self
+            .data
+            .contacts()
+            .iter()
+            .filter_map(|c| {
+                let (g1, g2) = (c.geom[0] as usize, c.geom[1] as usize);
+                match (self.geom_is_gripper[g1], self.geom_is_gripper[g2]) {
+                    (true, false) => self.geom_object[g2],
+                    (false, true) => self.geom_object[g1],
+                    _ => None,
+                }
+            })
+            .map(usize::from)
+            .collect();
+        out.sort_unstable();
+        out.dedup();
+        out
     }
 
     /// Evaluate the goal on the current data (as `check_success()` would).

@@ -122,13 +122,13 @@ impl OscController {
         let force = Vector3::from_fn(|i, _| pos_err[i] * self.kp[i] + (-s.ee_pos_vel[i]) * self.kd[i]);
         let torque = Vector3::from_fn(|i, _| ori_err[i] * self.kp[3 + i] + (-s.ee_ori_vel[i]) * self.kd[3 + i]);
 
-        let m_inv = s.mass.try_inverse().unwrap_or_else(|| pinv(&s.mass));
+        let m_inv = s.mass.try_inverse().unwrap_or_else(|| pinv7(&s.mass));
         let mut j_full = Mat6x7::zeros();
         j_full.fixed_view_mut::<3, ARM_DOF>(0, 0).copy_from(&s.j_pos);
         j_full.fixed_view_mut::<3, ARM_DOF>(3, 0).copy_from(&s.j_ori);
-        let lambda_full = pinv(&(j_full * m_inv * j_full.transpose()));
-        let lambda_pos = pinv(&(s.j_pos * m_inv * s.j_pos.transpose()));
-        let lambda_ori = pinv(&(s.j_ori * m_inv * s.j_ori.transpose()));
+        let lambda_full = pinv6(&(j_full * m_inv * j_full.transpose()));
+        let lambda_pos = pinv3(&(s.j_pos * m_inv * s.j_pos.transpose()));
+        let lambda_ori = pinv3(&(s.j_ori * m_inv * s.j_ori.transpose()));
         let j_bar = m_inv * j_full.transpose() * lambda_full;
         let nullspace = Mat7::identity() - j_bar * j_full;
 
@@ -145,12 +145,19 @@ impl OscController {
 
 /// Moore-Penrose pseudo-inverse via SVD, as `numpy.linalg.pinv` (rcond 1e-15 of the largest
 /// singular value). The matrices here are symmetric positive definite away from singularities.
-fn pinv<const N: usize>(m: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
-    let svd = nalgebra::DMatrix::from_column_slice(N, N, m.as_slice()).svd(true, true);
-    let max = svd.singular_values.max();
-    let p = svd.pseudo_inverse(1e-15 * max).expect("SVD computed with both U and V");
-    SMatrix::from_column_slice(p.as_slice())
+/// Fixed-size (stack-allocated) SVDs: this runs three times per physics substep.
+macro_rules! pinv_fixed {
+    ($name:ident, $n:literal) => {
+        fn $name(m: &SMatrix<f64, $n, $n>) -> SMatrix<f64, $n, $n> {
+            let svd = nalgebra::SVD::new(*m, true, true);
+            let max = svd.singular_values.max();
+            svd.pseudo_inverse(1e-15 * max).expect("SVD computed with both U and V")
+        }
+    };
 }
+pinv_fixed!(pinv3, 3);
+pinv_fixed!(pinv6, 6);
+pinv_fixed!(pinv7, 7);
 
 /// robosuite `orientation_error`: ½ Σᵢ cur[:,i] × des[:,i].
 pub fn orientation_error(desired: &Matrix3<f64>, current: &Matrix3<f64>) -> Vector3<f64> {

@@ -78,7 +78,10 @@ ln -sfn "$GOLDEN" data/golden
 if [ "$BUILD" = 1 ]; then
   step "cargo build --release"
   cargo build --release --quiet
-  step "smoke: task 0 of each suite, 30 real env steps, Rust vs raw MuJoCo"
-  ./target/release/pipeline bench sim --steps 30 --python none
+  step "main job, small default: the lift baseline on libero_spatial + libero_object, 1 trial per task"
+  rm -rf outputs/smoke
+  ./target/release/pipeline specs --suites libero_spatial,libero_object --trials 1 -o outputs/smoke/specs.parquet
+  ./target/release/pipeline run outputs/smoke/specs.parquet --out outputs/smoke/lift --policy lift
+  ./target/release/pipeline results --run outputs/smoke/lift --out outputs/smoke
 fi
 step "set-up done: bundles in data/bundles -> $BUNDLES"

@@ -1,9 +1,14 @@
 //! # pipeline
 //!
 //! The command-line entry point of the LIBERO evaluation pipeline. Each subcommand lives in its
-//! own module under `commands/`; this file only parses arguments and dispatches.
+//! own module; this file only parses arguments and dispatches.
 
 mod bench;
+mod results;
+mod run;
+mod session;
+mod specs;
+mod sql;
 mod tasks;
 
 use clap::{Parser, Subcommand};
@@ -24,6 +29,14 @@ struct Cli {
 enum Command {
     /// List suites, tasks and instructions from the task bundles.
     Tasks(tasks::Args),
+    /// Write a spec table (one row per episode) for the canonical protocol.
+    Specs(specs::Args),
+    /// Run every episode of a spec table (resumes a killed run on the same --out).
+    Run(run::Args),
+    /// Per-suite and per-task success rates with Wilson 95% intervals, re-scorable.
+    Results(results::Args),
+    /// Ad-hoc SQL over a run (tables specs, steps, episodes, manifest, scored).
+    Sql(sql::Args),
     /// Benchmarks that print figures (e.g. `pipeline bench sim`).
     #[command(subcommand)]
     Bench(bench::Bench),
@@ -33,6 +46,10 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Tasks(args) => tasks::run(&cli.bundles, args),
+        Command::Specs(args) => specs::run(&cli.bundles, args),
+        Command::Run(args) => run::run(&cli.bundles, args),
+        Command::Results(args) => results::run(args),
+        Command::Sql(args) => sql::run(args),
         Command::Bench(b) => bench::run(&cli.bundles, b),
     }
 }

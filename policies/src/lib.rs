@@ -1,8 +1,58 @@
 //! # libero-policies
 //!
-//! The `Policy` seam between the rollout and the models it evaluates, and its implementations
-//! (baselines, TorchScript, OpenVLA in-process on tch, an openpi websocket client). It knows
-//! nothing of MuJoCo: policies see observations (images, proprio state, the instruction) and
-//! return action chunks.
+//! The [`Policy`] seam between the rollout and the models it evaluates, and its implementations
+//! (baselines now; TorchScript, OpenVLA in-process on tch and a remote client with the policy
+//! issue). It knows nothing of MuJoCo: policies see an [`Observation`] (proprio state and the
+//! instruction; images with the media issue) and return 7-dim actions.
 //!
-//! Status: the crate is laid out; the seam and policies land with the dataflow and policy issues.
+//! A run names its policy with a [`PolicySpec`] string (`random`, `lift`, ...). Each rollout
+//! worker makes its own instance with [`PolicySpec::instantiate`], and every episode starts with
+//! [`Policy::reset`], which receives a per-episode seed so that a re-run (or a resumed run)
+//! reproduces the same actions.
+//!
+//! ```
+//! use libero_policies::{Observation, PolicySpec};
+//! let spec: PolicySpec = "lift".parse().unwrap();
+//! let mut policy = spec.instantiate().unwrap();
+//! policy.reset("pick up the bowl", 42);
+//! let action = policy.act(&Observation::default()).unwrap();
+//! assert_eq!(action[2], 0.05);
+//! ```
+
+mod baselines;
+mod spec;
+
+pub use baselines::{LiftPolicy, NanAtPolicy, RandomPolicy};
+pub use spec::PolicySpec;
+
+/// What a policy sees at one step (the env's observation, without MuJoCo types).
+#[derive(Debug, Clone, Default)]
+pub struct Observation {
+    /// Policy step index from 0 (wait steps are not shown to the policy).
+    pub policy_step: u32,
+    pub eef_pos: [f64; 3],
+    /// (w, x, y, z)
+    pub eef_quat: [f64; 4],
+    pub gripper_qpos: [f64; 2],
+    pub joint_pos: [f64; 7],
+    pub joint_vel: [f64; 7],
+}
+
+/// A 7-dim env action: delta eef position (3), delta axis-angle (3), gripper (-1 open … +1 close).
+pub type Action = [f32; 7];
+
+/// Why a policy could not produce an action; the episode becomes an error row.
+#[derive(Debug, thiserror::Error)]
+#[error("policy {policy}: {detail}")]
+pub struct PolicyError {
+    pub policy: String,
+    pub detail: String,
+}
+
+/// A policy evaluated by the rollout. One instance serves one episode at a time.
+pub trait Policy: Send {
+    /// Start an episode: the instruction and a seed derived from the episode key.
+    fn reset(&mut self, instruction: &str, episode_seed: u64);
+    /// The action for this step.
+    fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError>;
+}

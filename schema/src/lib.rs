@@ -1,12 +1,16 @@
 //! # libero-schema
 //!
 //! The shared vocabulary of the pipeline, with no behaviour: the canonical LIBERO protocol
-//! constants (one module, each value citing its source), the suite names, and the format versions
-//! of everything written to disk (task bundles, and later the spec/step/episode/manifest tables).
+//! constants (one module, each value citing its source), the suite names, the Arrow schemas of
+//! the stored tables (spec, steps, episodes, run manifest; [`tables`]), the run manifest
+//! ([`manifest`]), and the format versions of everything written to disk.
 //!
 //! Every other crate depends on this one; it depends on nothing of ours.
 
 pub mod bundle_format;
+pub mod manifest;
 pub mod protocol;
+pub mod tables;
 
+pub use manifest::RunManifest;
 pub use protocol::Suite;

@@ -107,7 +107,13 @@ pub struct LiberoEnv {
 impl LiberoEnv {
     /// Compile the bundle's scene (fixtures at their XML poses until [`reset`](Self::reset)).
     pub fn new(bundle: &TaskBundle) -> Result<Self, SimError> {
-        let model = Box::new(scene::compile(bundle)?);
+        Self::with_model(bundle, scene::compile(bundle)?)
+    }
+
+    /// An env on an already compiled model of this bundle (e.g. a copy of a cached one:
+    /// compiling decodes every texture and costs ~1 s, copying a few ms).
+    pub fn with_model(bundle: &TaskBundle, model: MjModel) -> Result<Self, SimError> {
+        let model = Box::new(model);
         let data = MjData::new(ModelPtr(&*model as *const MjModel));
         let task = &bundle.task;
         let c = &task.controller;

@@ -1,7 +1,7 @@
 use std::path::PathBuf;
 
 /// Everything that can go wrong in the simulator, with enough context to act on.
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, Clone, thiserror::Error)]
 pub enum SimError {
     #[error("task bundle not found at {path}: {hint}")]
     BundleMissing { path: PathBuf, hint: String },

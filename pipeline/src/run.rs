@@ -1,0 +1,212 @@
+//! `pipeline run SPECS --out RUN`: validate the specs, write the manifest, run every episode not
+//! yet finished through the `rollout` UDF, then print the per-suite results.
+//!
+//! Resume: the episode part is written after the steps part, and only finished episodes have one,
+//! so running the same command again on the same `--out` skips them; a different configuration
+//! (policy, caps, wait steps, stop-on-success, bundles, MuJoCo) is refused, never mixed.
+
+use crate::session::{self, SuccessDefinition};
+use crate::specs;
+use anyhow::{Context, Result, bail};
+use arrow::array::{ArrayRef, BooleanArray, Int32Array, RecordBatch, StringArray, UInt32Array};
+use datafusion::datasource::MemTable;
+use datafusion::prelude::SessionContext;
+use indicatif::{ProgressBar, ProgressStyle};
+use libero_policies::PolicySpec;
+use libero_schema::protocol::{CONTROL_FREQ_HZ, NUM_STEPS_WAIT, SUBSTEPS_PER_STEP};
+use libero_schema::{RunManifest, Suite, tables};
+use libero_sim::bundle::BundleSet;
+use libero_udfs::rollout::{RolloutContext, rollout_udf};
+use libero_udfs::run_store::{RunStore, parquet_bytes};
+use sha2::{Digest, Sha256};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Spec table (Parquet) with suite, task_id, init_state_id, seed; make one with `pipeline specs`.
+    specs: PathBuf,
+    /// Run location: a folder (created) or an object-store URL. Re-running on it resumes.
+    #[arg(long)]
+    out: String,
+    /// Policy to evaluate: random, lift (baselines) or nan-at:<step> (diagnostic).
+    #[arg(long)]
+    policy: PolicySpec,
+    /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400).
+    #[arg(long)]
+    max_steps: Option<u32>,
+    /// Wait steps before the policy acts.
+    #[arg(long, default_value_t = NUM_STEPS_WAIT)]
+    wait_steps: u32,
+    /// Stop an episode at its first success (as the published scripts do) instead of running
+    /// to the cap; last-step re-scoring is then no longer possible.
+    #[arg(long)]
+    stop_on_success: bool,
+    /// Parallel episodes (default: one per core).
+    #[arg(long)]
+    jobs: Option<usize>,
+}
+
+pub fn run(bundles: &Path, args: Args) -> Result<()> {
+    let set = Arc::new(BundleSet::open(bundles)?);
+    let specs = specs::load_specs(&args.specs, &set)?;
+    if let Some(j) = args.jobs {
+        rayon::ThreadPoolBuilder::new().num_threads(j.max(1)).build_global().ok();
+    }
+    let max_steps: BTreeMap<Suite, u32> =
+        Suite::ALL.iter().map(|s| (*s, args.max_steps.unwrap_or_else(|| s.max_steps()))).collect();
+    let mut manifest = RunManifest {
+        tables_version: tables::TABLES_VERSION,
+        run_config: String::new(),
+        created_at: now_rfc3339(),
+        git_revision: env!("PIPELINE_GIT_REVISION").to_string(),
+        pipeline_version: env!("CARGO_PKG_VERSION").to_string(),
+        mujoco_version: libero_sim::mujoco_version(),
+        bundle_format_version: libero_schema::bundle_format::BUNDLE_FORMAT_VERSION,
+        bundles_hash: bundles_hash(bundles)?,
+        policy: args.policy.name(),
+        policy_identity: args.policy.identity(),
+        num_steps_wait: args.wait_steps as i32,
+        max_steps: max_steps.iter().map(|(s, n)| (s.name().to_string(), *n as i32)).collect(),
+        stop_on_success: args.stop_on_success,
+        substeps_per_step: SUBSTEPS_PER_STEP as i32,
+        control_freq_hz: CONTROL_FREQ_HZ as i32,
+    };
+    manifest.run_config = hex16(&Sha256::digest(manifest.config_fingerprint().as_bytes()));
+
+    let runtime = tokio::runtime::Runtime::new()?;
+    runtime.block_on(async {
+        let store = RunStore::open(&args.out)?;
+        match store.read_manifest().await? {
+            Some(stored) if stored.run_config != manifest.run_config => {
+                bail!(
+                    "{} holds a run with another configuration:\n  {}\nUse another --out, or re-run with the stored configuration to resume it.",
+                    store.url(),
+                    manifest.config_differences(&stored).join("\n  ")
+                );
+            }
+            Some(stored) => manifest.created_at = stored.created_at,
+            None => {}
+        }
+        write_manifest(&store, &manifest).await?;
+        store.put("specs.parquet", parquet_bytes(&specs.batch, None)?).await?;
+
+        let finished = store.part_names("episodes").await?;
+        let pending: Vec<u32> = (0..specs.keys.len() as u32)
+            .filter(|&i| !finished.contains(&specs.keys[i as usize].part_name()))
+            .collect();
+        let done_before = specs.keys.len() - pending.len();
+        eprintln!(
+            "run {} · policy {} · {} episodes ({} already finished, {} to run) · config {}",
+            store.url(),
+            manifest.policy,
+            specs.keys.len(),
+            done_before,
+            pending.len(),
+            manifest.run_config
+        );
+        if !pending.is_empty() {
+            let progress = ProgressBar::new(pending.len() as u64).with_style(
+                ProgressStyle::with_template(
+                    "{elapsed_precise} [{bar:30}] {pos}/{len} episodes · {msg} · ETA {eta}",
+                )?
+                .progress_chars("=> "),
+            );
+            progress.set_message("success 0/0");
+            let ctx = Arc::new(RolloutContext::new(
+                set.clone(),
+                args.policy.clone(),
+                max_steps.clone(),
+                args.wait_steps,
+                args.stop_on_success,
+                manifest.run_config.clone(),
+                serde_json::to_string(&manifest)?,
+                store.clone(),
+                tokio::runtime::Handle::current(),
+                progress.clone(),
+            ));
+            let pending_batch = arrow::compute::take_record_batch(&specs.batch, &UInt32Array::from(pending))?;
+            run_rollouts(ctx, pending_batch, &specs.extras).await?;
+            progress.finish();
+        }
+        print_results(&args.out, &args.policy).await
+    })
+}
+
+/// The dataflow: the pending spec rows as a table, `rollout(...)` over them.
+async fn run_rollouts(ctx: Arc<RolloutContext>, pending: RecordBatch, extras: &[String]) -> Result<()> {
+    let session = SessionContext::new();
+    session.register_udf(rollout_udf(ctx));
+    // One partition, one batch: the UDF parallelises the rows itself.
+    let table = MemTable::try_new(pending.schema(), vec![vec![pending]])?;
+    session.register_table("pending", Arc::new(table))?;
+    let extras_arg = if extras.is_empty() {
+        String::new()
+    } else {
+        let pairs: Vec<String> = extras.iter().map(|c| format!("'{}', \"{}\"", c.replace('\'', "''"), c.replace('"', "\"\""))).collect();
+        format!(", named_struct({})", pairs.join(", "))
+    };
+    let sql = format!("SELECT rollout(suite, task_id, init_state_id, seed{extras_arg}) AS r FROM pending");
+    session.sql(&sql).await?.collect().await.context("the rollout query failed")?;
+    Ok(())
+}
+
+async fn write_manifest(store: &RunStore, m: &RunManifest) -> Result<()> {
+    store.put("manifest.json", serde_json::to_vec_pretty(m)?.into()).await?;
+    let s = |v: &str| Arc::new(StringArray::from(vec![v.to_string()])) as ArrayRef;
+    let i = |v: i32| Arc::new(Int32Array::from(vec![v])) as ArrayRef;
+    let u = |v: u32| Arc::new(UInt32Array::from(vec![v])) as ArrayRef;
+    let batch = RecordBatch::try_new(
+        tables::manifest(),
+        vec![
+            u(m.tables_version),
+            s(&m.run_config),
+            s(&m.created_at),
+            s(&m.git_revision),
+            s(&m.pipeline_version),
+            s(&m.mujoco_version),
+            u(m.bundle_format_version),
+            s(&m.bundles_hash),
+            s(&m.policy),
+            s(&m.policy_identity.to_string()),
+            i(m.num_steps_wait),
+            s(&serde_json::to_string(&m.max_steps)?),
+            Arc::new(BooleanArray::from(vec![m.stop_on_success])),
+            i(m.substeps_per_step),
+            i(m.control_freq_hz),
+        ],
+    )?;
+    store.put("manifest.parquet", parquet_bytes(&batch, Some(&serde_json::to_string(m)?))?).await
+}
+
+/// After a run: the per-suite table (default scoring) and the baseline check.
+async fn print_results(location: &str, policy: &PolicySpec) -> Result<()> {
+    let (ctx, _) = session::open(location, SuccessDefinition::AnyStep, None).await?;
+    let batches = ctx.sql(session::queries::RESULTS).await?.collect().await?;
+    println!("{}", arrow::util::pretty::pretty_format_batches(&batches)?);
+    crate::results::warn_on_baseline(policy, &batches);
+    Ok(())
+}
+
+/// sha256 of the bundles' index and every task's provenance (which hashes every input).
+fn bundles_hash(bundles: &Path) -> Result<String> {
+    let mut h = Sha256::new();
+    let index = bundles.join("index.json");
+    h.update(std::fs::read(&index).with_context(|| format!("reading {}", index.display()))?);
+    let set = BundleSet::open(bundles)?;
+    for t in set.tasks() {
+        let p = bundles.join(&t.path).join("provenance.json");
+        h.update(std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?);
+    }
+    Ok(format!("{:x}", h.finalize()))
+}
+
+fn hex16(d: &[u8]) -> String {
+    d.iter().take(8).map(|b| format!("{b:02x}")).collect()
+}
+
+/// UTC now as RFC 3339 (seconds).
+fn now_rfc3339() -> String {
+    chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Secs, true)
+}

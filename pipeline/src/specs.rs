@@ -1,0 +1,228 @@
+//! Spec tables: `pipeline specs` writes the canonical protocol's, and [`load_specs`] reads and
+//! validates any Parquet file with the spec columns before a single episode starts.
+//!
+//! A spec row is one episode: `suite, task_id, init_state_id, seed` (plus any other columns,
+//! carried through to the episode rows). Validation names every offending row: missing columns,
+//! nulls, unknown suites or tasks, init states or seeds the bundles do not have, duplicate keys,
+//! and extra columns whose names collide with the stored episode columns.
+
+use anyhow::{Context, Result, bail};
+use arrow::array::{ArrayRef, AsArray, Int32Array, Int64Array, RecordBatch, StringArray};
+use arrow::compute::{CastOptions, cast_with_options};
+use arrow::datatypes::{DataType, Field, Int32Type, Int64Type, Schema};
+use libero_schema::Suite;
+use libero_schema::protocol::{SEED, TRIALS_PER_TASK};
+use libero_schema::tables::{self, SPEC_COLUMNS};
+use libero_sim::bundle::BundleSet;
+use libero_udfs::steps_batch::EpisodeKey;
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Suites to include.
+    #[arg(long, value_delimiter = ',', default_value = "libero_spatial,libero_object,libero_goal,libero_10")]
+    suites: Vec<Suite>,
+    /// Trials per task; trial i runs init state i (the canonical protocol runs 50).
+    #[arg(long, default_value_t = TRIALS_PER_TASK)]
+    trials: u32,
+    /// Task ids to include (default: every task of each suite).
+    #[arg(long, value_delimiter = ',')]
+    tasks: Vec<u32>,
+    /// Env seeds; each (task, trial) runs once per seed (canonical: 7, openpi/vla-eval; OpenVLA: 0).
+    #[arg(long, value_delimiter = ',', default_values_t = [SEED])]
+    seeds: Vec<u64>,
+    /// Output Parquet file.
+    #[arg(short, long, default_value = "specs.parquet")]
+    out: PathBuf,
+}
+
+pub fn run(bundles: &Path, args: Args) -> Result<()> {
+    let set = BundleSet::open(bundles)?;
+    let (mut suite, mut task, mut init, mut seed) = (vec![], vec![], vec![], vec![]);
+    for s in &args.suites {
+        let available: Vec<u32> = set.tasks().iter().filter(|t| t.suite == s.name()).map(|t| t.task_id).collect();
+        if available.is_empty() {
+            bail!("no task bundles for {s}; build them with ./setup.sh --suites {s}");
+        }
+        let chosen: Vec<u32> = if args.tasks.is_empty() { available.clone() } else { args.tasks.clone() };
+        for t in chosen {
+            let entry = set.entry(*s, t)?;
+            if args.trials as usize > entry.n_init_states {
+                bail!("--trials {} but {s} task {t} has {} init states", args.trials, entry.n_init_states);
+            }
+            for &sd in &args.seeds {
+                for i in 0..args.trials {
+                    suite.push(s.name().to_string());
+                    task.push(t as i32);
+                    init.push(i as i32);
+                    seed.push(sd as i64);
+                }
+            }
+        }
+    }
+    let schema = Arc::new(Schema::new(
+        SPEC_COLUMNS.iter().map(|(n, t)| Field::new(*n, t.clone(), false)).collect::<Vec<_>>(),
+    ));
+    let batch = RecordBatch::try_new(
+        schema,
+        vec![
+            Arc::new(StringArray::from(suite)),
+            Arc::new(Int32Array::from(task)),
+            Arc::new(Int32Array::from(init)),
+            Arc::new(Int64Array::from(seed)),
+        ],
+    )?;
+    let bytes = libero_udfs::run_store::parquet_bytes(&batch, None)?;
+    if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    std::fs::write(&args.out, bytes).with_context(|| format!("writing {}", args.out.display()))?;
+    println!("wrote {} episode specs to {}", batch.num_rows(), args.out.display());
+    Ok(())
+}
+
+/// A validated spec table: the key columns in their canonical types, then the extra columns.
+pub struct Specs {
+    pub batch: RecordBatch,
+    pub keys: Vec<EpisodeKey>,
+    /// Names of the columns besides the key columns, in file order.
+    pub extras: Vec<String>,
+}
+
+/// Read a spec Parquet file and validate every row against the bundles.
+pub fn load_specs(path: &Path, bundles: &BundleSet) -> Result<Specs> {
+    let file = std::fs::File::open(path).with_context(|| format!("cannot open the spec file {}", path.display()))?;
+    let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file)
+        .with_context(|| format!("{} is not a Parquet file", path.display()))?
+        .build()?;
+    let schema = arrow::record_batch::RecordBatchReader::schema(&reader);
+    let batches: Vec<RecordBatch> = reader.collect::<Result<_, _>>()?;
+    let raw = arrow::compute::concat_batches(&schema, &batches)?;
+    validate(raw, bundles, &path.display().to_string())
+}
+
+/// Validate a spec batch (see the module doc); `source` names it in errors.
+pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<Specs> {
+    let schema = raw.schema();
+    let missing: Vec<&str> =
+        SPEC_COLUMNS.iter().map(|(n, _)| *n).filter(|n| schema.column_with_name(n).is_none()).collect();
+    if !missing.is_empty() {
+        let present: Vec<&str> = schema.fields().iter().map(|f| f.name().as_str()).collect();
+        bail!(
+            "spec file {source} lacks the column(s) {}; a spec table needs suite, task_id, init_state_id, seed (it has: {}). Make one with `pipeline specs`.",
+            missing.join(", "),
+            present.join(", ")
+        );
+    }
+    let stored: Vec<String> = tables::episodes().fields().iter().map(|f| f.name().clone()).collect();
+    let extras: Vec<String> = schema
+        .fields()
+        .iter()
+        .map(|f| f.name().clone())
+        .filter(|n| !SPEC_COLUMNS.iter().any(|(k, _)| k == n))
+        .collect();
+    let clashes: Vec<&String> = extras.iter().filter(|n| stored.contains(n)).collect();
+    if !clashes.is_empty() {
+        bail!(
+            "spec file {source}: extra column(s) {clashes:?} have the names of stored episode columns; rename them (extra columns are carried through to the episode rows)"
+        );
+    }
+    let mut columns: Vec<ArrayRef> = Vec::new();
+    let mut fields: Vec<Field> = Vec::new();
+    for (name, dt) in SPEC_COLUMNS {
+        let col = raw.column_by_name(name).expect("checked above");
+        let ok_type = match dt {
+            DataType::Utf8 => matches!(col.data_type(), DataType::Utf8 | DataType::LargeUtf8 | DataType::Utf8View),
+            _ => col.data_type().is_integer(),
+        };
+        if !ok_type {
+            bail!("spec file {source}: column {name} has type {}, expected {}", col.data_type(), dt);
+        }
+        let cast = cast_with_options(col, &dt, &CastOptions { safe: false, ..Default::default() })
+            .with_context(|| format!("spec file {source}: column {name} does not fit {dt}"))?;
+        columns.push(cast);
+        fields.push(Field::new(name, dt, true));
+    }
+    for name in &extras {
+        let i = schema.index_of(name)?;
+        columns.push(raw.column(i).clone());
+        fields.push(schema.field(i).clone());
+    }
+    let batch = RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)?;
+
+    let suite = batch.column(0).as_string::<i32>();
+    let task = batch.column(1).as_primitive::<Int32Type>();
+    let init = batch.column(2).as_primitive::<Int32Type>();
+    let seed = batch.column(3).as_primitive::<Int64Type>();
+    let mut problems: Vec<String> = Vec::new();
+    let mut keys = Vec::with_capacity(batch.num_rows());
+    let mut first_row: HashMap<String, usize> = HashMap::new();
+    let mut bundle_cache: BTreeMap<(Suite, u32), Result<(usize, Vec<u64>), String>> = BTreeMap::new();
+    for r in 0..batch.num_rows() {
+        use arrow::array::Array;
+        if suite.is_null(r) || task.is_null(r) || init.is_null(r) || seed.is_null(r) {
+            problems.push(format!("row {r}: a key column is null"));
+            continue;
+        }
+        let row = format!(
+            "row {r} (suite {:?}, task_id {}, init_state_id {}, seed {})",
+            suite.value(r),
+            task.value(r),
+            init.value(r),
+            seed.value(r)
+        );
+        let s: Suite = match suite.value(r).parse() {
+            Ok(s) => s,
+            Err(e) => {
+                problems.push(format!("{row}: {e}"));
+                continue;
+            }
+        };
+        if task.value(r) < 0 || init.value(r) < 0 || seed.value(r) < 0 {
+            problems.push(format!("{row}: task_id, init_state_id and seed must be ≥ 0"));
+            continue;
+        }
+        let t = task.value(r) as u32;
+        let info = bundle_cache.entry((s, t)).or_insert_with(|| {
+            let entry = bundles.entry(s, t).map_err(|e| e.to_string())?;
+            let b = bundles.load(s, t).map_err(|e| e.to_string())?;
+            Ok((entry.n_init_states, b.task.fixture_seeds.clone()))
+        });
+        match info {
+            Err(e) => {
+                problems.push(format!("{row}: {e}"));
+                continue;
+            }
+            Ok((n_init, seeds)) => {
+                if init.value(r) as usize >= *n_init {
+                    problems.push(format!("{row}: init_state_id out of range, the task has {n_init} init states (0..{n_init})"));
+                }
+                if !seeds.contains(&(seed.value(r) as u64)) {
+                    problems.push(format!(
+                        "{row}: the bundles have fixture poses for seeds {seeds:?} only; add the seed at set-up (scripts/reference/build_bundles.py --seeds) or use one of those"
+                    ));
+                }
+            }
+        }
+        let key = EpisodeKey::new(s.name(), task.value(r), init.value(r), seed.value(r));
+        if let Some(prev) = first_row.insert(key.episode_key.clone(), r) {
+            problems.push(format!("{row}: duplicate episode key {} (first at row {prev})", key.episode_key));
+        }
+        keys.push(key);
+    }
+    if !problems.is_empty() {
+        let n = problems.len();
+        let shown: Vec<String> = problems.into_iter().take(20).collect();
+        let more = if n > 20 { format!("\n  ... and {} more", n - 20) } else { String::new() };
+        bail!(
+            "spec file {source} has {n} problem(s); no episode was started:\n  {}{more}",
+            shown.join("\n  ")
+        );
+    }
+    if batch.num_rows() == 0 {
+        bail!("spec file {source} has no rows");
+    }
+    Ok(Specs { batch, keys, extras })
+}

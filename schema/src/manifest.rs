@@ -1,0 +1,64 @@
+//! The run manifest: everything that determines a run's steps, stored with the run.
+//!
+//! Written as `manifest.json` and `manifest.parquet` (schema [`crate::tables::manifest`]) in the
+//! run directory and as Parquet key-value metadata in every part. `run_config` is a hash of the
+//! fields that change the steps; resuming a run with a different configuration is refused.
+
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunManifest {
+    pub tables_version: u32,
+    /// Hash of the fields that change the steps (see [`RunManifest::config_fingerprint`]).
+    pub run_config: String,
+    pub created_at: String,
+    pub git_revision: String,
+    pub pipeline_version: String,
+    pub mujoco_version: String,
+    pub bundle_format_version: u32,
+    pub bundles_hash: String,
+    pub policy: String,
+    /// Checkpoint hash, unnorm key, chunking, image preprocessing, parameters (policy-defined).
+    pub policy_identity: serde_json::Value,
+    pub num_steps_wait: i32,
+    /// Episode cap in policy steps per suite name.
+    pub max_steps: BTreeMap<String, i32>,
+    pub stop_on_success: bool,
+    pub substeps_per_step: i32,
+    pub control_freq_hz: i32,
+}
+
+impl RunManifest {
+    /// The canonical text of what changes the steps; `run_config` is its hash. Creation time and
+    /// git revision are provenance, not configuration.
+    pub fn config_fingerprint(&self) -> String {
+        serde_json::json!({
+            "tables_version": self.tables_version,
+            "mujoco_version": self.mujoco_version,
+            "bundle_format_version": self.bundle_format_version,
+            "bundles_hash": self.bundles_hash,
+            "policy": self.policy,
+            "policy_identity": self.policy_identity,
+            "num_steps_wait": self.num_steps_wait,
+            "max_steps": self.max_steps,
+            "stop_on_success": self.stop_on_success,
+            "substeps_per_step": self.substeps_per_step,
+            "control_freq_hz": self.control_freq_hz,
+        })
+        .to_string()
+    }
+
+    /// Fields whose values differ between two manifests' configurations, for a resume error.
+    pub fn config_differences(&self, other: &RunManifest) -> Vec<String> {
+        let (a, b): (serde_json::Value, serde_json::Value) = (
+            serde_json::from_str(&self.config_fingerprint()).unwrap_or_default(),
+            serde_json::from_str(&other.config_fingerprint()).unwrap_or_default(),
+        );
+        let (Some(a), Some(b)) = (a.as_object(), b.as_object()) else { return vec![] };
+        a.iter()
+            .filter(|(k, v)| b.get(*k) != Some(v))
+            .map(|(k, v)| format!("{k}: stored {} vs now {}", b.get(k).cloned().unwrap_or_default(), v))
+            .collect()
+    }
+}

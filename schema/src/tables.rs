@@ -1,0 +1,222 @@
+//! Arrow schemas of the tables a run stores, defined once and documented field by field.
+//!
+//! A run directory holds:
+//! - `specs.parquet`: the spec table the run was started with (every column, carried through);
+//! - `steps/<episode>.parquet`: one part per episode, one row per env step ([`steps`]);
+//! - `episodes/<episode>.parquet`: one part per episode, one row ([`episodes`]) plus the spec's
+//!   extra columns; its presence marks the episode finished (written after its steps part);
+//! - `manifest.json` / `manifest.parquet`: the run manifest ([`manifest`]), also stored as Parquet
+//!   key-value metadata ([`MANIFEST_METADATA_KEY`]) in every part.
+//!
+//! Each field carries its documentation in the Arrow field metadata under [`DOC_KEY`], so
+//! `pipeline schema` and notebooks (`pyarrow.parquet.read_schema(...).field(...).metadata`) show
+//! it. Changing a table bumps [`TABLES_VERSION`].
+
+use arrow_schema::{DataType, Field, Fields, Schema, SchemaRef};
+use std::collections::HashMap;
+use std::sync::{Arc, LazyLock};
+
+/// Version of the step/episode/manifest layout; stored in every manifest and part.
+pub const TABLES_VERSION: u32 = 1;
+/// Arrow field-metadata key holding a field's documentation.
+pub const DOC_KEY: &str = "doc";
+/// Parquet key-value metadata key holding the run manifest (JSON) in every part.
+pub const MANIFEST_METADATA_KEY: &str = "libero_eval.manifest";
+
+/// The spec columns every spec table must have, with the Arrow type they are read as.
+pub const SPEC_COLUMNS: [(&str, DataType); 4] = [
+    ("suite", DataType::Utf8),
+    ("task_id", DataType::Int32),
+    ("init_state_id", DataType::Int32),
+    ("seed", DataType::Int64),
+];
+
+fn field(name: &str, data_type: DataType, nullable: bool, doc: &str) -> Field {
+    Field::new(name, data_type, nullable).with_metadata(HashMap::from([(DOC_KEY.to_string(), doc.to_string())]))
+}
+
+/// `FixedSizeList<item>` of `n` non-null values.
+pub fn fixed_list(item: DataType, n: i32) -> DataType {
+    DataType::FixedSizeList(Arc::new(Field::new("item", item, false)), n)
+}
+
+/// `List<item>` of non-null values.
+pub fn list(item: DataType) -> DataType {
+    DataType::List(Arc::new(Field::new("item", item, false)))
+}
+
+/// The fields of one object pose inside `steps.object_poses`.
+pub fn object_pose_fields() -> Fields {
+    Fields::from(vec![
+        field("name", DataType::Utf8, false, "object or fixture name, as in the BDDL"),
+        field("pos", fixed_list(DataType::Float64, 3), false, "root body position (m, world frame)"),
+        field("quat", fixed_list(DataType::Float64, 4), false, "root body orientation (w, x, y, z)"),
+    ])
+}
+
+fn key_fields() -> Vec<Field> {
+    vec![
+        field(
+            "episode_key",
+            DataType::Utf8,
+            false,
+            "`suite/task_id/init_state_id/seed`: unique within a run, the join key of every table",
+        ),
+        field("suite", DataType::Utf8, false, "LIBERO suite, e.g. libero_spatial"),
+        field("task_id", DataType::Int32, false, "task index within the suite (0-based, LIBERO order)"),
+        field("init_state_id", DataType::Int32, false, "index into the task's init states (= trial index)"),
+        field(
+            "seed",
+            DataType::Int64,
+            false,
+            "env seed: fixture poses are those of episode init_state_id after env.seed(seed)",
+        ),
+    ]
+}
+
+/// One row per env step, wait steps included.
+pub fn steps() -> SchemaRef {
+    static S: LazyLock<SchemaRef> = LazyLock::new(|| {
+        let mut f = key_fields();
+        f.extend([
+            field("step", DataType::Int32, false, "env step index from 0, wait steps included"),
+            field(
+                "policy_step",
+                DataType::Int32,
+                true,
+                "policy step index from 0; null for the protocol's wait steps. The episode cap counts these",
+            ),
+            field("is_wait", DataType::Boolean, false, "a protocol wait step (no motion, gripper open), not a policy action"),
+            field(
+                "action",
+                fixed_list(DataType::Float32, 7),
+                false,
+                "action sent to the env: delta eef pos (3), delta axis-angle (3), gripper (-1 open … +1 close); before clipping",
+            ),
+            field("eef_pos", fixed_list(DataType::Float64, 3), false, "end-effector (grip site) position after the step (m)"),
+            field("eef_quat", fixed_list(DataType::Float64, 4), false, "end-effector orientation after the step (w, x, y, z)"),
+            field("gripper_qpos", fixed_list(DataType::Float64, 2), false, "the two finger joint positions after the step (m)"),
+            field("joint_pos", fixed_list(DataType::Float64, 7), false, "arm joint positions after the step (rad)"),
+            field(
+                "object_poses",
+                list(DataType::Struct(object_pose_fields())),
+                false,
+                "pose of every object and fixture after the step",
+            ),
+            field("goal", DataType::Boolean, false, "the BDDL goal (AND of its terms) after the step, as check_success()"),
+            field(
+                "goal_terms",
+                list(DataType::Boolean),
+                false,
+                "truth of each goal term after the step; names in episodes.goal_terms",
+            ),
+            field(
+                "gripper_contacts",
+                list(DataType::Utf8),
+                false,
+                "objects/fixtures touching a gripper geom after the step (grasp evidence for failure analysis)",
+            ),
+            field("sim_ms", DataType::Float32, false, "wall time of the env step (ms)"),
+            field("policy_ms", DataType::Float32, false, "wall time of the policy call that produced the action (ms); 0 for wait steps"),
+        ]);
+        Arc::new(Schema::new(f))
+    });
+    S.clone()
+}
+
+/// One row per episode (before the spec table's extra columns, which are appended).
+pub fn episodes() -> SchemaRef {
+    static S: LazyLock<SchemaRef> = LazyLock::new(|| {
+        let mut f = key_fields();
+        f.extend([
+            field("instruction", DataType::Utf8, false, "language instruction from the BDDL (:language ...)"),
+            field("policy", DataType::Utf8, false, "policy name (identity in the manifest)"),
+            field("run_config", DataType::Utf8, false, "hash of the run configuration (manifest.run_config)"),
+            field("max_steps", DataType::Int32, false, "episode cap in policy steps used for this episode"),
+            field("num_steps_wait", DataType::Int32, false, "wait steps before the policy acts"),
+            field(
+                "stop_on_success",
+                DataType::Boolean,
+                false,
+                "true: stopped at the first success (published scripts); false: ran to the cap (run to horizon)",
+            ),
+            field("n_policy_steps", DataType::Int32, false, "policy steps executed"),
+            field(
+                "success",
+                DataType::Boolean,
+                false,
+                "default success definition (any-step within max_steps, as the published scripts' first-success latch); re-score from steps with `pipeline results --success`",
+            ),
+            field(
+                "first_success_step",
+                DataType::Int32,
+                true,
+                "policy step at which the goal first held; null if never",
+            ),
+            field("final_goal", DataType::Boolean, false, "goal value at the last executed step (last-step evidence)"),
+            field("goal_terms", list(DataType::Utf8), false, "BDDL text of each goal term, order of steps.goal_terms"),
+            field(
+                "error_kind",
+                DataType::Utf8,
+                true,
+                "null when the episode ran to its end; else sim_unstable, invalid_action, policy, bundle or internal",
+            ),
+            field("error", DataType::Utf8, true, "the error message, null when none"),
+            field("wall_s", DataType::Float64, false, "episode wall time, reset to last step (s)"),
+            field("sim_s", DataType::Float64, false, "time in env steps (s)"),
+            field("policy_s", DataType::Float64, false, "time in policy calls (s)"),
+        ]);
+        Arc::new(Schema::new(f))
+    });
+    S.clone()
+}
+
+/// The run manifest as a one-row table.
+pub fn manifest() -> SchemaRef {
+    static S: LazyLock<SchemaRef> = LazyLock::new(|| {
+        Arc::new(Schema::new(vec![
+            field("tables_version", DataType::UInt32, false, "layout version of the stored tables"),
+            field("run_config", DataType::Utf8, false, "hash of everything below that changes the steps"),
+            field("created_at", DataType::Utf8, false, "UTC time the run was first started (RFC 3339)"),
+            field("git_revision", DataType::Utf8, false, "git revision of the pipeline build (`-dirty` if modified)"),
+            field("pipeline_version", DataType::Utf8, false, "pipeline crate version"),
+            field("mujoco_version", DataType::Utf8, false, "MuJoCo library version linked"),
+            field("bundle_format_version", DataType::UInt32, false, "task bundle format version"),
+            field("bundles_hash", DataType::Utf8, false, "sha256 of the bundles' index and provenance files"),
+            field("policy", DataType::Utf8, false, "policy name"),
+            field(
+                "policy_identity",
+                DataType::Utf8,
+                false,
+                "policy identity (JSON): checkpoint hash, unnorm key, chunking, image preprocessing, parameters",
+            ),
+            field("num_steps_wait", DataType::Int32, false, "wait steps before the policy acts"),
+            field("max_steps", DataType::Utf8, false, "episode caps per suite in policy steps (JSON)"),
+            field("stop_on_success", DataType::Boolean, false, "episodes stop at the first success"),
+            field("substeps_per_step", DataType::Int32, false, "physics substeps per env step"),
+            field("control_freq_hz", DataType::Int32, false, "env control rate"),
+        ]))
+    });
+    S.clone()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_field_is_documented_and_names_are_unique() {
+        for schema in [steps(), episodes(), manifest()] {
+            let mut names = std::collections::HashSet::new();
+            for f in schema.fields() {
+                assert!(names.insert(f.name().clone()), "duplicate field {}", f.name());
+                let doc = f.metadata().get(DOC_KEY).map(String::as_str).unwrap_or("");
+                assert!(doc.len() > 10, "field {} has no doc", f.name());
+            }
+        }
+        for (name, dt) in SPEC_COLUMNS {
+            let f = steps().field_with_name(name).unwrap().clone();
+            assert_eq!(f.data_type(), &dt, "{name}");
+        }
+    }
+}

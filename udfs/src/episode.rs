@@ -1,0 +1,245 @@
+//! One episode of the protocol: reset, the wait steps, then the policy until the cap (or the
+//! first success when asked), recording every step; and its one-row episode batch.
+//!
+//! The loop is OpenVLA's `run_libero_eval.py` (inherited by openpi and vla-eval): `reset()`,
+//! `set_init_state(init_states[i])`, `num_steps_wait` steps of `[0,0,0,0,0,0,-1]` whose `done` is
+//! ignored, then up to `max_steps` policy steps. The published scripts stop at the first success;
+//! here the default is to run to the cap so that last-step scoring stays possible, and
+//! `success` (any policy step within the cap) equals the published first-success latch either way.
+
+use crate::steps_batch::{EpisodeKey, StepRecord, StepsBatchBuilder};
+use arrow::array::{
+    ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, RecordBatch, StringArray,
+};
+use arrow::buffer::OffsetBuffer;
+use arrow::datatypes::{DataType, Field};
+use libero_policies::{Observation, Policy};
+use libero_schema::protocol::WAIT_ACTION;
+use libero_schema::tables;
+use libero_sim::SimError;
+use libero_sim::env::LiberoEnv;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// What the protocol fixes for an episode.
+#[derive(Debug, Clone)]
+pub struct EpisodeProtocol {
+    pub max_steps: u32,
+    pub num_steps_wait: u32,
+    pub stop_on_success: bool,
+}
+
+/// Why an episode ended early; stored as `error_kind` / `error`.
+#[derive(Debug, Clone)]
+pub struct EpisodeError {
+    pub kind: &'static str,
+    pub message: String,
+}
+
+impl EpisodeError {
+    pub fn from_sim(e: &SimError) -> Self {
+        let kind = match e {
+            SimError::Unstable { .. } => "sim_unstable",
+            SimError::InvalidAction { .. } => "invalid_action",
+            SimError::BundleMissing { .. }
+            | SimError::BundleCorrupt { .. }
+            | SimError::BundleVersion { .. }
+            | SimError::UnknownTask { .. }
+            | SimError::Compile { .. }
+            | SimError::InitStateOutOfRange { .. }
+            | SimError::UnknownSeed { .. } => "bundle",
+            _ => "internal",
+        };
+        EpisodeError { kind, message: e.to_string() }
+    }
+}
+
+/// The outcome summary of one episode (the episode row without its key columns).
+#[derive(Debug, Clone)]
+pub struct EpisodeSummary {
+    pub instruction: String,
+    pub n_policy_steps: u32,
+    pub first_success_step: Option<u32>,
+    pub final_goal: bool,
+    pub goal_terms: Vec<String>,
+    pub error: Option<EpisodeError>,
+    pub wall_s: f64,
+    pub sim_s: f64,
+    pub policy_s: f64,
+}
+
+impl EpisodeSummary {
+    pub fn success(&self) -> bool {
+        self.first_success_step.is_some()
+    }
+
+    /// The summary of an episode that could not start (no env, no steps).
+    pub fn failed_to_start(instruction: String, error: EpisodeError) -> Self {
+        EpisodeSummary {
+            instruction,
+            n_policy_steps: 0,
+            first_success_step: None,
+            final_goal: false,
+            goal_terms: vec![],
+            error: Some(error),
+            wall_s: 0.0,
+            sim_s: 0.0,
+            policy_s: 0.0,
+        }
+    }
+}
+
+/// Run one episode on `env` (already built for the key's task) with `policy`.
+pub fn run_episode(
+    env: &mut LiberoEnv,
+    policy: &mut dyn Policy,
+    key: &EpisodeKey,
+    protocol: &EpisodeProtocol,
+    policy_seed: u64,
+) -> (StepsBatchBuilder, EpisodeSummary) {
+    let t_start = Instant::now();
+    let instruction = env.bundle().task.instruction.clone();
+    let object_names: Vec<String> = env.object_names().map(str::to_string).collect();
+    let mut steps = StepsBatchBuilder::new(key.clone(), object_names);
+    let mut summary = EpisodeSummary {
+        instruction: instruction.clone(),
+        n_policy_steps: 0,
+        first_success_step: None,
+        final_goal: false,
+        goal_terms: env.goal_terms().to_vec(),
+        error: None,
+        wall_s: 0.0,
+        sim_s: 0.0,
+        policy_s: 0.0,
+    };
+    if let Err(e) = env.reset(key.init_state_id as usize, key.seed as u64) {
+        summary.error = Some(EpisodeError::from_sim(&e));
+        return (steps, summary);
+    }
+    policy.reset(&instruction, policy_seed);
+    let total = protocol.num_steps_wait + protocol.max_steps;
+    for t in 0..total {
+        let policy_step = t.checked_sub(protocol.num_steps_wait);
+        let mut policy_ms = 0.0f32;
+        let action: [f32; 7] = match policy_step {
+            None => WAIT_ACTION,
+            Some(p) => {
+                let obs = env.observation();
+                let input = Observation {
+                    policy_step: p,
+                    eef_pos: obs.eef_pos,
+                    eef_quat: obs.eef_quat,
+                    gripper_qpos: obs.gripper_qpos,
+                    joint_pos: obs.joint_pos,
+                    joint_vel: obs.joint_vel,
+                };
+                let t0 = Instant::now();
+                let a = policy.act(&input);
+                policy_ms = t0.elapsed().as_secs_f32() * 1e3;
+                summary.policy_s += policy_ms as f64 / 1e3;
+                match a {
+                    Ok(a) => a,
+                    Err(e) => {
+                        summary.error = Some(EpisodeError { kind: "policy", message: e.to_string() });
+                        break;
+                    }
+                }
+            }
+        };
+        let t0 = Instant::now();
+        let out = env.step(action.map(f64::from));
+        let sim_ms = t0.elapsed().as_secs_f32() * 1e3;
+        summary.sim_s += sim_ms as f64 / 1e3;
+        let out = match out {
+            Ok(o) => o,
+            Err(e) => {
+                summary.error = Some(EpisodeError::from_sim(&e));
+                break;
+            }
+        };
+        let obs = env.observation();
+        let poses: Vec<([f64; 3], [f64; 4])> = obs.object_poses.iter().map(|p| (p.pos, p.quat)).collect();
+        let contacts = env.gripper_contacts();
+        steps.push(&StepRecord {
+            step: t as i32,
+            policy_step: policy_step.map(|p| p as i32),
+            action,
+            eef_pos: obs.eef_pos,
+            eef_quat: obs.eef_quat,
+            gripper_qpos: obs.gripper_qpos,
+            joint_pos: obs.joint_pos,
+            object_poses: &poses,
+            goal: out.goal.satisfied,
+            goal_terms: &out.goal.terms,
+            gripper_contacts: &contacts,
+            sim_ms,
+            policy_ms,
+        });
+        if let Some(p) = policy_step {
+            summary.n_policy_steps = p + 1;
+            summary.final_goal = out.goal.satisfied;
+            if out.goal.satisfied && summary.first_success_step.is_none() {
+                summary.first_success_step = Some(p);
+                if protocol.stop_on_success {
+                    break;
+                }
+            }
+        }
+    }
+    summary.wall_s = t_start.elapsed().as_secs_f64();
+    (steps, summary)
+}
+
+/// Run identity stored in every episode row.
+#[derive(Debug, Clone)]
+pub struct EpisodeContext<'a> {
+    pub policy: &'a str,
+    pub run_config: &'a str,
+    pub protocol: &'a EpisodeProtocol,
+}
+
+/// The one-row episode batch ([`tables::episodes`]), with `extras` (a one-row slice of the spec's
+/// extra columns) appended.
+pub fn episode_batch(
+    key: &EpisodeKey,
+    s: &EpisodeSummary,
+    ctx: &EpisodeContext,
+    extras: Option<&RecordBatch>,
+) -> anyhow::Result<RecordBatch> {
+    let terms = StringArray::from(s.goal_terms.clone());
+    let item = Arc::new(Field::new("item", DataType::Utf8, false));
+    let goal_terms = ListArray::try_new(item, OffsetBuffer::from_lengths([s.goal_terms.len()]), Arc::new(terms), None)?;
+    let mut columns: Vec<ArrayRef> = vec![
+        Arc::new(StringArray::from(vec![key.episode_key.as_str()])),
+        Arc::new(StringArray::from(vec![key.suite.as_str()])),
+        Arc::new(Int32Array::from(vec![key.task_id])),
+        Arc::new(Int32Array::from(vec![key.init_state_id])),
+        Arc::new(Int64Array::from(vec![key.seed])),
+        Arc::new(StringArray::from(vec![s.instruction.as_str()])),
+        Arc::new(StringArray::from(vec![ctx.policy])),
+        Arc::new(StringArray::from(vec![ctx.run_config])),
+        Arc::new(Int32Array::from(vec![ctx.protocol.max_steps as i32])),
+        Arc::new(Int32Array::from(vec![ctx.protocol.num_steps_wait as i32])),
+        Arc::new(BooleanArray::from(vec![ctx.protocol.stop_on_success])),
+        Arc::new(Int32Array::from(vec![s.n_policy_steps as i32])),
+        Arc::new(BooleanArray::from(vec![s.success()])),
+        Arc::new(Int32Array::from(vec![s.first_success_step.map(|x| x as i32)])),
+        Arc::new(BooleanArray::from(vec![s.final_goal])),
+        Arc::new(goal_terms),
+        Arc::new(StringArray::from(vec![s.error.as_ref().map(|e| e.kind)])),
+        Arc::new(StringArray::from(vec![s.error.as_ref().map(|e| e.message.as_str())])),
+        Arc::new(Float64Array::from(vec![s.wall_s])),
+        Arc::new(Float64Array::from(vec![s.sim_s])),
+        Arc::new(Float64Array::from(vec![s.policy_s])),
+    ];
+    let base = tables::episodes();
+    let schema = match extras {
+        None => base,
+        Some(x) => {
+            columns.extend(x.columns().iter().cloned());
+            let fields: Vec<_> = base.fields().iter().chain(x.schema().fields().iter()).cloned().collect();
+            Arc::new(arrow::datatypes::Schema::new(fields))
+        }
+    };
+    Ok(RecordBatch::try_new(schema, columns)?)
+}

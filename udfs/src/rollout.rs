@@ -1,0 +1,341 @@
+//! The `rollout` UDF: spec rows in, episodes run, Parquet parts out.
+//!
+//! `rollout(suite, task_id, init_state_id, seed [, extras])` runs the episode of every row of the
+//! batch in parallel across cores (rayon; one `LiberoEnv` per worker thread, reused while the
+//! worker stays on the same task), writes its steps part and then its episode part to the run
+//! store, and returns `{episode_key, success, n_policy_steps, error_kind}` per row. `extras` is an
+//! optional struct of the spec's other columns, appended to the episode row ("carried through").
+//!
+//! An episode that fails (unstable physics, a bad action, a policy error, even a panic) becomes an
+//! episode row with `error_kind`/`error` set and the run goes on; only a storage failure stops
+//! the query, since nothing could be recorded.
+
+use crate::episode::{EpisodeContext, EpisodeError, EpisodeProtocol, EpisodeSummary, episode_batch, run_episode};
+use crate::run_store::{RunStore, parquet_bytes};
+use crate::steps_batch::EpisodeKey;
+use arrow::array::{Array, ArrayRef, AsArray, BooleanArray, Int32Array, RecordBatch, StringArray, StructArray};
+use arrow::datatypes::{DataType, Field, Fields, Int32Type, Int64Type};
+use datafusion::common::{Result, exec_err, plan_err};
+use datafusion::logical_expr::{ColumnarValue, ScalarFunctionArgs, ScalarUDF, ScalarUDFImpl, Signature, Volatility};
+use indicatif::ProgressBar;
+use libero_policies::PolicySpec;
+use libero_schema::Suite;
+use libero_sim::SimError;
+use libero_sim::bundle::{BundleSet, TaskBundle};
+use mujoco_rs::prelude::MjModel;
+use libero_sim::env::LiberoEnv;
+use rayon::prelude::*;
+use sha2::{Digest, Sha256};
+use std::cell::RefCell;
+use std::collections::{BTreeMap, HashMap};
+use std::hash::{Hash, Hasher};
+use std::panic::AssertUnwindSafe;
+use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Everything a rollout needs besides the spec rows.
+pub struct RolloutContext {
+    pub bundles: Arc<BundleSet>,
+    pub policy: PolicySpec,
+    /// Episode cap in policy steps per suite.
+    pub max_steps: BTreeMap<Suite, u32>,
+    pub num_steps_wait: u32,
+    pub stop_on_success: bool,
+    pub run_config: String,
+    /// The manifest as JSON, stored in every part's key-value metadata.
+    pub manifest_json: String,
+    pub store: RunStore,
+    /// Runtime for the store's async writes (rayon workers are not runtime threads).
+    pub runtime: tokio::runtime::Handle,
+    pub progress: ProgressBar,
+    successes: AtomicU64,
+    finished: AtomicU64,
+    tasks: TaskCache,
+}
+
+/// Each task's bundle and compiled model, made once per run and copied for every worker.
+#[derive(Default)]
+struct TaskCache {
+    slots: Mutex<HashMap<(Suite, u32), Arc<OnceLock<Result<Arc<(TaskBundle, MjModel)>, SimError>>>>>,
+}
+
+impl TaskCache {
+    fn get(&self, bundles: &BundleSet, suite: Suite, task: u32) -> Result<Arc<(TaskBundle, MjModel)>, SimError> {
+        let slot = self.slots.lock().expect("task cache lock").entry((suite, task)).or_default().clone();
+        slot.get_or_init(|| {
+            let bundle = bundles.load(suite, task)?;
+            let model = libero_sim::scene::compile(&bundle)?;
+            Ok(Arc::new((bundle, model)))
+        })
+        .clone()
+    }
+}
+
+impl RolloutContext {
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        bundles: Arc<BundleSet>,
+        policy: PolicySpec,
+        max_steps: BTreeMap<Suite, u32>,
+        num_steps_wait: u32,
+        stop_on_success: bool,
+        run_config: String,
+        manifest_json: String,
+        store: RunStore,
+        runtime: tokio::runtime::Handle,
+        progress: ProgressBar,
+    ) -> Self {
+        RolloutContext {
+            bundles,
+            policy,
+            max_steps,
+            num_steps_wait,
+            stop_on_success,
+            run_config,
+            manifest_json,
+            store,
+            runtime,
+            progress,
+            successes: AtomicU64::new(0),
+            finished: AtomicU64::new(0),
+            tasks: TaskCache::default(),
+        }
+    }
+
+    fn protocol(&self, suite: Suite) -> EpisodeProtocol {
+        EpisodeProtocol {
+            max_steps: self.max_steps.get(&suite).copied().unwrap_or_else(|| suite.max_steps()),
+            num_steps_wait: self.num_steps_wait,
+            stop_on_success: self.stop_on_success,
+        }
+    }
+}
+
+/// The fields of the struct `rollout(...)` returns per row.
+pub fn rollout_result_fields() -> Fields {
+    Fields::from(vec![
+        Field::new("episode_key", DataType::Utf8, false),
+        Field::new("success", DataType::Boolean, false),
+        Field::new("n_policy_steps", DataType::Int32, false),
+        Field::new("error_kind", DataType::Utf8, true),
+    ])
+}
+
+#[derive(Debug)]
+pub struct RolloutUdf {
+    ctx: Arc<RolloutContext>,
+    signature: Signature,
+}
+
+impl std::fmt::Debug for RolloutContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RolloutContext").field("policy", &self.policy).field("run_config", &self.run_config).finish()
+    }
+}
+
+impl PartialEq for RolloutUdf {
+    fn eq(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.ctx, &other.ctx)
+    }
+}
+impl Eq for RolloutUdf {}
+impl Hash for RolloutUdf {
+    fn hash<H: Hasher>(&self, state: &mut H) {
+        self.ctx.run_config.hash(state);
+    }
+}
+
+impl RolloutUdf {
+    pub fn new(ctx: Arc<RolloutContext>) -> Self {
+        // Volatile: never constant-folded or de-duplicated; every call runs episodes.
+        RolloutUdf { ctx, signature: Signature::user_defined(Volatility::Volatile) }
+    }
+}
+
+pub fn rollout_udf(ctx: Arc<RolloutContext>) -> ScalarUDF {
+    ScalarUDF::from(RolloutUdf::new(ctx))
+}
+
+impl ScalarUDFImpl for RolloutUdf {
+    fn name(&self) -> &str {
+        "rollout"
+    }
+    fn signature(&self) -> &Signature {
+        &self.signature
+    }
+    fn return_type(&self, _arg_types: &[DataType]) -> Result<DataType> {
+        Ok(DataType::Struct(rollout_result_fields()))
+    }
+    fn coerce_types(&self, arg_types: &[DataType]) -> Result<Vec<DataType>> {
+        let ok = |t: &DataType| t.is_integer();
+        match arg_types {
+            [s, t, i, e, rest @ ..] if ok(t) && ok(i) && ok(e) && rest.len() <= 1 => {
+                let mut v = vec![DataType::Utf8, DataType::Int32, DataType::Int32, DataType::Int64];
+                if !matches!(s, DataType::Utf8 | DataType::LargeUtf8 | DataType::Utf8View) {
+                    return plan_err!("rollout(): suite must be a string, got {s}");
+                }
+                match rest.first() {
+                    Some(x @ DataType::Struct(_)) => v.push(x.clone()),
+                    Some(x) => return plan_err!("rollout(): the 5th argument (extras) must be a struct, got {x}"),
+                    None => {}
+                }
+                Ok(v)
+            }
+            _ => plan_err!("rollout(suite, task_id, init_state_id, seed [, extras struct]) got {arg_types:?}"),
+        }
+    }
+    fn invoke_with_args(&self, args: ScalarFunctionArgs) -> Result<ColumnarValue> {
+        let arrays = ColumnarValue::values_to_arrays(&args.args)?;
+        let suites = arrays[0].as_string::<i32>();
+        let tasks = arrays[1].as_primitive::<Int32Type>();
+        let inits = arrays[2].as_primitive::<Int32Type>();
+        let seeds = arrays[3].as_primitive::<Int64Type>();
+        let extras: Option<RecordBatch> = arrays.get(4).map(|a| RecordBatch::from(a.as_struct()));
+        let n = suites.len();
+        for i in 0..n {
+            if suites.is_null(i) || tasks.is_null(i) || inits.is_null(i) || seeds.is_null(i) {
+                return exec_err!("rollout(): row {i} has a null key column");
+            }
+        }
+        // Work units: runs of consecutive rows of one task, split so every core gets work. A unit
+        // runs on one worker, which keeps its env (and its touched MuJoCo arena) across the unit.
+        let unit_cap = n.div_ceil(2 * rayon::current_num_threads()).max(1);
+        let mut units: Vec<std::ops::Range<usize>> = vec![];
+        for i in 0..n {
+            match units.last_mut() {
+                Some(u) if u.len() < unit_cap
+                    && suites.value(u.start) == suites.value(i)
+                    && tasks.value(u.start) == tasks.value(i) =>
+                {
+                    u.end = i + 1
+                }
+                _ => units.push(i..i + 1),
+            }
+        }
+        let results: Vec<anyhow::Result<(String, bool, i32, Option<&'static str>)>> = units
+            .into_par_iter()
+            .flat_map_iter(|unit| {
+                unit.map(|i| {
+                    let key = EpisodeKey::new(suites.value(i), tasks.value(i), inits.value(i), seeds.value(i));
+                    let extras = extras.as_ref().map(|x| x.slice(i, 1));
+                    self.run_row(&key, extras.as_ref())
+                })
+                .collect::<Vec<_>>()
+            })
+            .collect();
+        let mut keys = Vec::with_capacity(n);
+        let mut success = Vec::with_capacity(n);
+        let mut steps = Vec::with_capacity(n);
+        let mut kinds = Vec::with_capacity(n);
+        for r in results {
+            let (k, s, t, e) = r.map_err(|e| datafusion::error::DataFusionError::External(e.into()))?;
+            keys.push(k);
+            success.push(s);
+            steps.push(t);
+            kinds.push(e);
+        }
+        let columns: Vec<ArrayRef> = vec![
+            Arc::new(StringArray::from(keys)),
+            Arc::new(BooleanArray::from(success)),
+            Arc::new(Int32Array::from(steps)),
+            Arc::new(StringArray::from(kinds)),
+        ];
+        Ok(ColumnarValue::Array(Arc::new(StructArray::try_new(rollout_result_fields(), columns, None)?)))
+    }
+}
+
+thread_local! {
+    /// The worker's env, kept while consecutive episodes are of the same task.
+    static WORKER_ENV: RefCell<Option<((Suite, u32), LiberoEnv)>> = const { RefCell::new(None) };
+}
+
+/// Seed of the policy's randomness for an episode: a stable hash of the episode key, so reruns
+/// and resumed runs reproduce the same actions.
+pub fn policy_seed(key: &EpisodeKey) -> u64 {
+    let h = Sha256::digest(key.episode_key.as_bytes());
+    u64::from_le_bytes(h[..8].try_into().expect("8 bytes"))
+}
+
+impl RolloutUdf {
+    fn run_row(
+        &self,
+        key: &EpisodeKey,
+        extras: Option<&RecordBatch>,
+    ) -> anyhow::Result<(String, bool, i32, Option<&'static str>)> {
+        let ctx = &self.ctx;
+        let suite: Suite = key.suite.parse().map_err(anyhow::Error::msg)?;
+        let protocol = ctx.protocol(suite);
+        let run = || -> (arrow::error::Result<RecordBatch>, EpisodeSummary) {
+            WORKER_ENV.with(|cell| {
+                let mut cached = cell.borrow_mut();
+                let task = (suite, key.task_id as u32);
+                if cached.as_ref().is_none_or(|(k, _)| *k != task) {
+                    *cached = None;
+                    let env = ctx.tasks.get(&ctx.bundles, suite, task.1).and_then(|bm| {
+                        let model = bm.1.clone().ok_or_else(|| SimError::Other("mj_copyModel failed".into()))?;
+                        LiberoEnv::with_model(&bm.0, model)
+                    });
+                    match env {
+                        Ok(env) => *cached = Some((task, env)),
+                        Err(e) => {
+                            let instruction = ctx
+                                .bundles
+                                .entry(suite, task.1)
+                                .map(|t| t.instruction.clone())
+                                .unwrap_or_default();
+                            let s = EpisodeSummary::failed_to_start(instruction, EpisodeError::from_sim(&e));
+                            return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
+                        }
+                    }
+                }
+                let env = &mut cached.as_mut().expect("env just cached").1;
+                let mut policy = match ctx.policy.instantiate() {
+                    Ok(p) => p,
+                    Err(e) => {
+                        let s = EpisodeSummary::failed_to_start(
+                            env.bundle().task.instruction.clone(),
+                            EpisodeError { kind: "policy", message: e.to_string() },
+                        );
+                        return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
+                    }
+                };
+                let (steps, summary) = run_episode(env, policy.as_mut(), key, &protocol, policy_seed(key));
+                (steps.finish(), summary)
+            })
+        };
+        let (steps, summary) = match std::panic::catch_unwind(AssertUnwindSafe(run)) {
+            Ok(r) => r,
+            Err(panic) => {
+                // The cached env may be mid-step; drop it.
+                WORKER_ENV.with(|c| c.borrow_mut().take());
+                let msg = panic
+                    .downcast_ref::<String>()
+                    .cloned()
+                    .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                    .unwrap_or_else(|| "panic".into());
+                let s = EpisodeSummary::failed_to_start(String::new(), EpisodeError { kind: "internal", message: msg });
+                (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s)
+            }
+        };
+        let steps = steps?;
+        let ectx = EpisodeContext { policy: &ctx.policy.name(), run_config: &ctx.run_config, protocol: &protocol };
+        let episode = episode_batch(key, &summary, &ectx, extras)?;
+        let name = key.part_name();
+        let steps_bytes = parquet_bytes(&steps, Some(&ctx.manifest_json))?;
+        let episode_bytes = parquet_bytes(&episode, Some(&ctx.manifest_json))?;
+        ctx.runtime.block_on(async {
+            ctx.store.put(&format!("steps/{name}"), steps_bytes).await?;
+            ctx.store.put(&format!("episodes/{name}"), episode_bytes).await
+        })?;
+        let finished = ctx.finished.fetch_add(1, Ordering::Relaxed) + 1;
+        let successes = ctx.successes.fetch_add(summary.success() as u64, Ordering::Relaxed) + summary.success() as u64;
+        ctx.progress.set_message(format!("success {successes}/{finished}"));
+        ctx.progress.inc(1);
+        Ok((
+            key.episode_key.clone(),
+            summary.success(),
+            summary.n_policy_steps as i32,
+            summary.error.as_ref().map(|e| e.kind),
+        ))
+    }
+}

@@ -1,0 +1,140 @@
+//! A run's storage on an `object_store` location: where every part lives, atomic writes, and
+//! what is already finished (for resume).
+//!
+//! ```text
+//! <run>/manifest.json, manifest.parquet    the run manifest
+//! <run>/specs.parquet                      the spec table as given (every column)
+//! <run>/steps/<episode>.parquet            one part per episode, one row per env step
+//! <run>/episodes/<episode>.parquet         one part per episode, one row; written last, so its
+//!                                          presence marks the episode finished
+//! ```
+//!
+//! A location is a local path (the default), `file://`, `memory://` (tests) or, with the
+//! `cloud` feature of the pipeline, `s3://`, `gs://`, `az://`. Every `put` of `object_store` is
+//! atomic (local files are written to a temporary name and renamed), so a killed run leaves no
+//! half-written part, at most a steps part without its episode part, which a resume rewrites.
+
+use arrow::array::RecordBatch;
+use bytes::Bytes;
+use futures::TryStreamExt;
+use libero_schema::RunManifest;
+use libero_schema::tables::MANIFEST_METADATA_KEY;
+use object_store::path::Path as StorePath;
+use object_store::{ObjectStore, ObjectStoreExt, PutPayload};
+use parquet::arrow::ArrowWriter;
+use parquet::basic::{Compression, ZstdLevel};
+use parquet::file::metadata::KeyValue;
+use parquet::file::properties::WriterProperties;
+use std::collections::HashSet;
+use std::sync::Arc;
+use url::Url;
+
+#[derive(Debug, Clone)]
+pub struct RunStore {
+    store: Arc<dyn ObjectStore>,
+    /// The run's root inside the store.
+    root: StorePath,
+    /// The run's root as a URL with a trailing slash (what DataFusion tables are registered on).
+    url: Url,
+    /// The store's base URL (scheme + authority), for registering it with DataFusion.
+    base: Url,
+}
+
+impl RunStore {
+    /// Open a run location: a local path (created if missing) or an object-store URL.
+    pub fn open(location: &str) -> anyhow::Result<Self> {
+        let url = match Url::parse(location) {
+            Ok(u) if u.scheme().len() > 1 => u,
+            _ => {
+                let p = std::path::Path::new(location);
+                std::fs::create_dir_all(p)
+                    .map_err(|e| anyhow::anyhow!("cannot create the run folder {location}: {e}"))?;
+                let abs = std::fs::canonicalize(p)?;
+                Url::from_directory_path(&abs).map_err(|_| anyhow::anyhow!("not a usable path: {}", abs.display()))?
+            }
+        };
+        let mut url = url;
+        if !url.path().ends_with('/') {
+            url.set_path(&format!("{}/", url.path()));
+        }
+        let (store, root) = object_store::parse_url(&url).map_err(|e| {
+            anyhow::anyhow!(
+                "cannot open the run location {location}: {e}. Use a local path, file://, memory:// or (with the `cloud` build feature) s3://, gs://, az://"
+            )
+        })?;
+        let base = Url::parse(&format!("{}://{}", url.scheme(), url.authority()))?;
+        Ok(RunStore { store: Arc::from(store), root, url, base })
+    }
+
+    pub fn url(&self) -> &Url {
+        &self.url
+    }
+
+    pub fn base_url(&self) -> &Url {
+        &self.base
+    }
+
+    pub fn object_store(&self) -> Arc<dyn ObjectStore> {
+        self.store.clone()
+    }
+
+    fn path(&self, rel: &str) -> StorePath {
+        rel.split('/').fold(self.root.clone(), |p, part| p.join(part))
+    }
+
+    /// URL of a table folder (`steps/`, `episodes/`) or file inside the run.
+    pub fn table_url(&self, rel: &str) -> String {
+        format!("{}{}", self.url, rel)
+    }
+
+    pub async fn put(&self, rel: &str, bytes: Bytes) -> anyhow::Result<()> {
+        self.store
+            .put(&self.path(rel), PutPayload::from_bytes(bytes))
+            .await
+            .map_err(|e| anyhow::anyhow!("writing {rel} to {}: {e}", self.url))?;
+        Ok(())
+    }
+
+    /// The bytes of a file in the run, `None` if it does not exist.
+    pub async fn get(&self, rel: &str) -> anyhow::Result<Option<Bytes>> {
+        match self.store.get(&self.path(rel)).await {
+            Ok(r) => Ok(Some(r.bytes().await?)),
+            Err(object_store::Error::NotFound { .. }) => Ok(None),
+            Err(e) => Err(anyhow::anyhow!("reading {rel} from {}: {e}", self.url)),
+        }
+    }
+
+    /// File names (not paths) of the parts under `steps/` or `episodes/`.
+    pub async fn part_names(&self, table: &str) -> anyhow::Result<HashSet<String>> {
+        let prefix = self.path(table);
+        let metas: Vec<_> = self.store.list(Some(&prefix)).try_collect().await?;
+        Ok(metas
+            .into_iter()
+            .filter_map(|m| m.location.filename().map(str::to_string))
+            .filter(|n| n.ends_with(".parquet"))
+            .collect())
+    }
+
+    pub async fn read_manifest(&self) -> anyhow::Result<Option<RunManifest>> {
+        match self.get("manifest.json").await? {
+            None => Ok(None),
+            Some(b) => Ok(Some(serde_json::from_slice(&b).map_err(|e| {
+                anyhow::anyhow!("{}manifest.json is not a run manifest ({e}); use a new output location", self.url)
+            })?)),
+        }
+    }
+}
+
+/// Encode a batch as a Parquet file (zstd), with the run manifest in the key-value metadata.
+pub fn parquet_bytes(batch: &RecordBatch, manifest_json: Option<&str>) -> anyhow::Result<Bytes> {
+    let kv = manifest_json.map(|m| vec![KeyValue::new(MANIFEST_METADATA_KEY.to_string(), m.to_string())]);
+    let props = WriterProperties::builder()
+        .set_compression(Compression::ZSTD(ZstdLevel::try_new(3)?))
+        .set_key_value_metadata(kv)
+        .build();
+    let mut buf = Vec::new();
+    let mut w = ArrowWriter::try_new(&mut buf, batch.schema(), Some(props))?;
+    w.write(batch)?;
+    w.close()?;
+    Ok(Bytes::from(buf))
+}

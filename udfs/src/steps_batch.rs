@@ -1,0 +1,222 @@
+//! Building the steps table of one episode as one Arrow batch ([`libero_schema::tables::steps`]).
+//!
+//! Values are appended into flat column buffers as the episode runs and turned into Arrow arrays
+//! once at the end, so a step costs a few `Vec` pushes.
+
+use arrow::array::{
+    ArrayRef, BooleanArray, FixedSizeListArray, Float32Array, Float64Array, Int32Array, Int64Array, ListArray,
+    RecordBatch, StringArray, StructArray,
+};
+use arrow::buffer::OffsetBuffer;
+use arrow::datatypes::{DataType, Field};
+use arrow::error::ArrowError;
+use libero_schema::tables;
+use std::sync::Arc;
+
+/// The key columns every row of an episode repeats.
+#[derive(Debug, Clone)]
+pub struct EpisodeKey {
+    pub episode_key: String,
+    pub suite: String,
+    pub task_id: i32,
+    pub init_state_id: i32,
+    pub seed: i64,
+}
+
+impl EpisodeKey {
+    pub fn new(suite: &str, task_id: i32, init_state_id: i32, seed: i64) -> Self {
+        EpisodeKey {
+            episode_key: format!("{suite}/{task_id}/{init_state_id}/{seed}"),
+            suite: suite.to_string(),
+            task_id,
+            init_state_id,
+            seed,
+        }
+    }
+
+    /// File name of the episode's parts: `libero_spatial-t03-i012-s7.parquet`.
+    pub fn part_name(&self) -> String {
+        format!("{}-t{:02}-i{:03}-s{}.parquet", self.suite, self.task_id, self.init_state_id, self.seed)
+    }
+}
+
+/// One env step's evidence.
+pub struct StepRecord<'a> {
+    pub step: i32,
+    pub policy_step: Option<i32>,
+    pub action: [f32; 7],
+    pub eef_pos: [f64; 3],
+    pub eef_quat: [f64; 4],
+    pub gripper_qpos: [f64; 2],
+    pub joint_pos: [f64; 7],
+    /// (pos, quat) per object, in the order of the builder's object names.
+    pub object_poses: &'a [([f64; 3], [f64; 4])],
+    pub goal: bool,
+    pub goal_terms: &'a [bool],
+    /// Indices into the object names.
+    pub gripper_contacts: &'a [usize],
+    pub sim_ms: f32,
+    pub policy_ms: f32,
+}
+
+/// Column buffers for one episode's steps.
+pub struct StepsBatchBuilder {
+    key: EpisodeKey,
+    object_names: Vec<String>,
+    step: Vec<i32>,
+    policy_step: Vec<Option<i32>>,
+    action: Vec<f32>,
+    eef_pos: Vec<f64>,
+    eef_quat: Vec<f64>,
+    gripper_qpos: Vec<f64>,
+    joint_pos: Vec<f64>,
+    object_pos: Vec<f64>,
+    object_quat: Vec<f64>,
+    goal: Vec<bool>,
+    goal_terms: Vec<bool>,
+    goal_terms_len: Vec<usize>,
+    contacts: Vec<usize>,
+    contacts_len: Vec<usize>,
+    sim_ms: Vec<f32>,
+    policy_ms: Vec<f32>,
+}
+
+impl StepsBatchBuilder {
+    pub fn new(key: EpisodeKey, object_names: Vec<String>) -> Self {
+        StepsBatchBuilder {
+            key,
+            object_names,
+            step: vec![],
+            policy_step: vec![],
+            action: vec![],
+            eef_pos: vec![],
+            eef_quat: vec![],
+            gripper_qpos: vec![],
+            joint_pos: vec![],
+            object_pos: vec![],
+            object_quat: vec![],
+            goal: vec![],
+            goal_terms: vec![],
+            goal_terms_len: vec![],
+            contacts: vec![],
+            contacts_len: vec![],
+            sim_ms: vec![],
+            policy_ms: vec![],
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.step.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.step.is_empty()
+    }
+
+    pub fn push(&mut self, r: &StepRecord) {
+        assert_eq!(r.object_poses.len(), self.object_names.len(), "one pose per object");
+        self.step.push(r.step);
+        self.policy_step.push(r.policy_step);
+        self.action.extend_from_slice(&r.action);
+        self.eef_pos.extend_from_slice(&r.eef_pos);
+        self.eef_quat.extend_from_slice(&r.eef_quat);
+        self.gripper_qpos.extend_from_slice(&r.gripper_qpos);
+        self.joint_pos.extend_from_slice(&r.joint_pos);
+        for (p, q) in r.object_poses {
+            self.object_pos.extend_from_slice(p);
+            self.object_quat.extend_from_slice(q);
+        }
+        self.goal.push(r.goal);
+        self.goal_terms.extend_from_slice(r.goal_terms);
+        self.goal_terms_len.push(r.goal_terms.len());
+        self.contacts.extend_from_slice(r.gripper_contacts);
+        self.contacts_len.push(r.gripper_contacts.len());
+        self.sim_ms.push(r.sim_ms);
+        self.policy_ms.push(r.policy_ms);
+    }
+
+    pub fn finish(self) -> Result<RecordBatch, ArrowError> {
+        let n = self.step.len();
+        let k = &self.key;
+        let n_obj = self.object_names.len();
+        let names: StringArray = (0..n).flat_map(|_| self.object_names.iter().map(|s| Some(s.as_str()))).collect();
+        let pose_fields = tables::object_pose_fields();
+        let poses = StructArray::try_new(
+            pose_fields.clone(),
+            vec![Arc::new(names), fixed_f64(self.object_pos, 3)?, fixed_f64(self.object_quat, 4)?],
+            None,
+        )?;
+        let contacts: StringArray =
+            self.contacts.iter().map(|&i| Some(self.object_names[i].as_str())).collect();
+        let columns: Vec<ArrayRef> = vec![
+            Arc::new(StringArray::from(vec![k.episode_key.as_str(); n])),
+            Arc::new(StringArray::from(vec![k.suite.as_str(); n])),
+            Arc::new(Int32Array::from(vec![k.task_id; n])),
+            Arc::new(Int32Array::from(vec![k.init_state_id; n])),
+            Arc::new(Int64Array::from(vec![k.seed; n])),
+            Arc::new(Int32Array::from(self.step)),
+            Arc::new(Int32Array::from(self.policy_step.clone())),
+            Arc::new(BooleanArray::from(self.policy_step.iter().map(Option::is_none).collect::<Vec<_>>())),
+            fixed_f32(self.action, 7)?,
+            fixed_f64(self.eef_pos, 3)?,
+            fixed_f64(self.eef_quat, 4)?,
+            fixed_f64(self.gripper_qpos, 2)?,
+            fixed_f64(self.joint_pos, 7)?,
+            list(DataType::Struct(pose_fields), Arc::new(poses), std::iter::repeat_n(n_obj, n))?,
+            Arc::new(BooleanArray::from(self.goal)),
+            list(DataType::Boolean, Arc::new(BooleanArray::from(self.goal_terms)), self.goal_terms_len)?,
+            list(DataType::Utf8, Arc::new(contacts), self.contacts_len)?,
+            Arc::new(Float32Array::from(self.sim_ms)),
+            Arc::new(Float32Array::from(self.policy_ms)),
+        ];
+        RecordBatch::try_new(tables::steps(), columns)
+    }
+}
+
+fn item(t: DataType) -> Arc<Field> {
+    Arc::new(Field::new("item", t, false))
+}
+
+fn fixed_f64(values: Vec<f64>, size: i32) -> Result<ArrayRef, ArrowError> {
+    Ok(Arc::new(FixedSizeListArray::try_new(item(DataType::Float64), size, Arc::new(Float64Array::from(values)), None)?))
+}
+
+fn fixed_f32(values: Vec<f32>, size: i32) -> Result<ArrayRef, ArrowError> {
+    Ok(Arc::new(FixedSizeListArray::try_new(item(DataType::Float32), size, Arc::new(Float32Array::from(values)), None)?))
+}
+
+fn list(t: DataType, values: ArrayRef, lengths: impl IntoIterator<Item = usize>) -> Result<ArrayRef, ArrowError> {
+    Ok(Arc::new(ListArray::try_new(item(t), OffsetBuffer::from_lengths(lengths), values, None)?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_batch_matches_the_steps_schema() {
+        let mut b = StepsBatchBuilder::new(EpisodeKey::new("libero_goal", 3, 12, 7), vec!["bowl".into(), "plate".into()]);
+        for t in 0..3 {
+            b.push(&StepRecord {
+                step: t,
+                policy_step: (t > 0).then_some(t - 1),
+                action: [0.0; 7],
+                eef_pos: [0.1, 0.2, 0.3],
+                eef_quat: [1.0, 0.0, 0.0, 0.0],
+                gripper_qpos: [0.04, -0.04],
+                joint_pos: [0.0; 7],
+                object_poses: &[([0.0; 3], [1.0, 0.0, 0.0, 0.0]), ([1.0; 3], [1.0, 0.0, 0.0, 0.0])],
+                goal: t == 2,
+                goal_terms: &[t == 2],
+                gripper_contacts: if t == 1 { &[1] } else { &[] },
+                sim_ms: 1.0,
+                policy_ms: 0.0,
+            });
+        }
+        let batch = b.finish().unwrap();
+        assert_eq!(batch.num_rows(), 3);
+        assert_eq!(batch.schema(), tables::steps());
+        let key = batch.column_by_name("episode_key").unwrap();
+        assert_eq!(key.as_any().downcast_ref::<StringArray>().unwrap().value(0), "libero_goal/3/12/7");
+    }
+}

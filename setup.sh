@@ -80,8 +80,9 @@ if [ "$BUILD" = 1 ]; then
   cargo build --release --quiet
   step "main job, small default: the lift baseline on libero_spatial + libero_object, 1 trial per task"
   rm -rf outputs/smoke
-  ./target/release/pipeline specs --suites libero_spatial,libero_object --trials 1 -o outputs/smoke/specs.parquet
-  ./target/release/pipeline run outputs/smoke/specs.parquet --out outputs/smoke/lift --policy lift
-  ./target/release/pipeline results --run outputs/smoke/lift --out outputs/smoke
+  P="${CARGO_TARGET_DIR:-target}/release/pipeline"
+  "$P" specs --suites libero_spatial,libero_object --trials 1 -o outputs/smoke/specs.parquet
+  "$P" run outputs/smoke/specs.parquet --out outputs/smoke/lift --policy lift
+  "$P" results --run outputs/smoke/lift --out outputs/smoke
 fi
 step "set-up done: bundles in data/bundles -> $BUNDLES"

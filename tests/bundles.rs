@@ -85,7 +85,10 @@ mod tempdir {
 #[test]
 fn missing_corrupt_or_foreign_bundles_say_how_to_rebuild() {
     let missing = BundleSet::open(repo_root().join("no/such/bundles")).unwrap_err();
-    assert!(matches!(missing, SimError::BundleMissing { .. }) && missing.to_string().contains("./setup.sh"), "{missing}");
+    assert!(
+        matches!(missing, SimError::BundleMissing { .. }) && missing.to_string().contains("./setup.sh"),
+        "{missing}"
+    );
 
     let (_d, dir) = copy_bundle(Suite::LiberoSpatial, 0);
     std::fs::write(dir.join("task.json"), "{ not json").unwrap();
@@ -96,10 +99,7 @@ fn missing_corrupt_or_foreign_bundles_say_how_to_rebuild() {
     let prov = std::fs::read_to_string(dir2.join("provenance.json")).unwrap().replace("\"3.3.7\"", "\"3.2.3\"");
     std::fs::write(dir2.join("provenance.json"), prov).unwrap();
     let foreign = TaskBundle::load(&dir2).unwrap_err();
-    assert!(
-        matches!(foreign, SimError::BundleVersion { .. }) && foreign.to_string().contains("3.2.3"),
-        "{foreign}"
-    );
+    assert!(matches!(foreign, SimError::BundleVersion { .. }) && foreign.to_string().contains("3.2.3"), "{foreign}");
 
     let (_d3, dir3) = copy_bundle(Suite::LiberoSpatial, 0);
     std::fs::write(dir3.join("init_states.npy"), b"\x93NUMPY truncated").unwrap();

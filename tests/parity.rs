@@ -6,6 +6,7 @@
 //!   * init state 0 of every task: the 10 wait steps within 1e-12 (the reset quirks reproduced:
 //!     stale controller cache, kept goal orientation, gripper state) and all 80 steps within 1e-6;
 //!   * every episode within 1e-6 over its first 40 steps.
+//!
 //!   Why not every episode for all 80 steps: our torques differ from the reference's in the last
 //!   bits (nalgebra vs the LAPACK/BLAS calls of numba-jitted robosuite code). With objects resting
 //!   in contact, MuJoCo's Newton solver stops on `tolerance = 1e-8`, so a last-bit difference can
@@ -44,7 +45,8 @@ fn golden_episodes(kind: &str) -> Vec<Golden> {
         if parts.len() != 3 || !parts[2].starts_with(kind) {
             continue;
         }
-        let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path.join("meta.json")).unwrap()).unwrap();
+        let meta: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(path.join("meta.json")).unwrap()).unwrap();
         out.push(Golden {
             suite: parts[0].parse().unwrap(),
             task_id: parts[1].parse().unwrap(),
@@ -91,8 +93,10 @@ fn check_all(mode: StepMode) {
     assert!(episodes.len() >= 120, "expected 40 tasks x 3 init states of golden data, found {}", episodes.len());
     let results: Vec<_> = std::thread::scope(|s| {
         let chunks: Vec<_> = episodes.chunks(episodes.len().div_ceil(2)).collect();
-        let handles: Vec<_> =
-            chunks.into_iter().map(|c| s.spawn(move || c.iter().map(|g| (g, replay(g, mode))).collect::<Vec<_>>())).collect();
+        let handles: Vec<_> = chunks
+            .into_iter()
+            .map(|c| s.spawn(move || c.iter().map(|g| (g, replay(g, mode))).collect::<Vec<_>>()))
+            .collect();
         handles.into_iter().flat_map(|h| h.join().unwrap()).collect()
     });
     let mut failures = Vec::new();
@@ -104,7 +108,14 @@ fn check_all(mode: StepMode) {
         overall = overall.max(all);
         println!(
             "  {} {:>2} {} {:>12.3e} {:>12.3e} {:>12.3e} {:>10.3e} {}",
-            g.suite, g.task_id, g.init, all, wait, early, de, if mism.is_empty() { "same" } else { "DIFF" }
+            g.suite,
+            g.task_id,
+            g.init,
+            all,
+            wait,
+            early,
+            de,
+            if mism.is_empty() { "same" } else { "DIFF" }
         );
         let what = format!("{} task {} init {}", g.suite, g.task_id, g.init);
         if !mism.is_empty() {
@@ -121,7 +132,10 @@ fn check_all(mode: StepMode) {
         }
     }
     let within = results.iter().filter(|(_, (e, _, _))| max(e) <= STATE_TOLERANCE).count();
-    println!("{mode:?}: {within}/{} episodes within {STATE_TOLERANCE:e} over all steps; max |Δ state| {overall:e}", results.len());
+    println!(
+        "{mode:?}: {within}/{} episodes within {STATE_TOLERANCE:e} over all steps; max |Δ state| {overall:e}",
+        results.len()
+    );
     assert!(failures.is_empty(), "parity failures ({mode:?}):\n{}", failures.join("\n"));
 }
 

@@ -87,7 +87,8 @@ fn sim(bundles: &Path, args: SimArgs) -> Result<()> {
             raw.push(raw_mujoco_rate(&bundle, args.steps, &controls)?);
         }
         let (split, fwd, raw) = (median(split), median(fwd), median(raw));
-        let py = if args.python.as_os_str() == "none" { None } else { Some(python_rate(&args.python, *suite, args.steps)?) };
+        let py =
+            if args.python.as_os_str() == "none" { None } else { Some(python_rate(&args.python, *suite, args.steps)?) };
         println!(
             "{:<15} {:>12.1} {:>14.1} {:>12.1} {:>12} {:>9.0}% {:>10}",
             suite.name(),
@@ -132,11 +133,10 @@ fn raw_mujoco_rate(bundle: &libero_sim::bundle::TaskBundle, steps: u32, controls
 
 fn python_rate(python: &Path, suite: Suite, steps: u32) -> Result<f64> {
     let script = Path::new("scripts/reference/bench_reference.py");
-    let out = Command::new(python)
-        .arg(script)
-        .args([suite.name(), "0", &steps.to_string()])
-        .output()
-        .with_context(|| format!("running {} {} (the reference venv; see ./setup.sh)", python.display(), script.display()))?;
+    let out =
+        Command::new(python).arg(script).args([suite.name(), "0", &steps.to_string()]).output().with_context(|| {
+            format!("running {} {} (the reference venv; see ./setup.sh)", python.display(), script.display())
+        })?;
     if !out.status.success() {
         bail!("reference benchmark failed: {}", String::from_utf8_lossy(&out.stderr));
     }

@@ -144,7 +144,8 @@ async fn run_rollouts(ctx: Arc<RolloutContext>, pending: RecordBatch, extras: &[
     let extras_arg = if extras.is_empty() {
         String::new()
     } else {
-        let pairs: Vec<String> = extras.iter().map(|c| format!("'{}', \"{}\"", c.replace('\'', "''"), c.replace('"', "\"\""))).collect();
+        let pairs: Vec<String> =
+            extras.iter().map(|c| format!("'{}', \"{}\"", c.replace('\'', "''"), c.replace('"', "\"\""))).collect();
         format!(", named_struct({})", pairs.join(", "))
     };
     let sql = format!("SELECT rollout(suite, task_id, init_state_id, seed{extras_arg}) AS r FROM pending");

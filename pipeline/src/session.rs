@@ -54,11 +54,7 @@ pub async fn open(location: &str, success: SuccessDefinition, cap: Option<u32>) 
         ctx.register_parquet("specs", store.table_url("specs.parquet"), ParquetReadOptions::default()).await?;
         let spec_schema = ctx.table("specs").await?.schema().as_arrow().clone();
         episode_fields.extend(
-            spec_schema
-                .fields()
-                .iter()
-                .filter(|f| !tables::SPEC_COLUMNS.iter().any(|(n, _)| n == f.name()))
-                .cloned(),
+            spec_schema.fields().iter().filter(|f| !tables::SPEC_COLUMNS.iter().any(|(n, _)| n == f.name())).cloned(),
         );
     }
     register_listing(&ctx, &store, "steps", tables::steps()).await?;

@@ -62,9 +62,8 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             }
         }
     }
-    let schema = Arc::new(Schema::new(
-        SPEC_COLUMNS.iter().map(|(n, t)| Field::new(*n, t.clone(), false)).collect::<Vec<_>>(),
-    ));
+    let schema =
+        Arc::new(Schema::new(SPEC_COLUMNS.iter().map(|(n, t)| Field::new(*n, t.clone(), false)).collect::<Vec<_>>()));
     let batch = RecordBatch::try_new(
         schema,
         vec![
@@ -159,7 +158,9 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
     let mut problems: Vec<String> = Vec::new();
     let mut keys = Vec::with_capacity(batch.num_rows());
     let mut first_row: HashMap<String, usize> = HashMap::new();
-    let mut bundle_cache: BTreeMap<(Suite, u32), Result<(usize, Vec<u64>), String>> = BTreeMap::new();
+    // per task: (number of init states, env seeds with fixture poses), or why the bundle failed
+    type TaskFacts = Result<(usize, Vec<u64>), String>;
+    let mut bundle_cache: BTreeMap<(Suite, u32), TaskFacts> = BTreeMap::new();
     for r in 0..batch.num_rows() {
         use arrow::array::Array;
         if suite.is_null(r) || task.is_null(r) || init.is_null(r) || seed.is_null(r) {
@@ -197,7 +198,9 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
             }
             Ok((n_init, seeds)) => {
                 if init.value(r) as usize >= *n_init {
-                    problems.push(format!("{row}: init_state_id out of range, the task has {n_init} init states (0..{n_init})"));
+                    problems.push(format!(
+                        "{row}: init_state_id out of range, the task has {n_init} init states (0..{n_init})"
+                    ));
                 }
                 if !seeds.contains(&(seed.value(r) as u64)) {
                     problems.push(format!(
@@ -216,10 +219,7 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
         let n = problems.len();
         let shown: Vec<String> = problems.into_iter().take(20).collect();
         let more = if n > 20 { format!("\n  ... and {} more", n - 20) } else { String::new() };
-        bail!(
-            "spec file {source} has {n} problem(s); no episode was started:\n  {}{more}",
-            shown.join("\n  ")
-        );
+        bail!("spec file {source} has {n} problem(s); no episode was started:\n  {}{more}", shown.join("\n  "));
     }
     if batch.num_rows() == 0 {
         bail!("spec file {source} has no rows");

@@ -46,7 +46,9 @@ impl PolicySpec {
             PolicySpec::Lift => serde_json::json!({
                 "kind": "baseline", "name": "lift", "action": [0, 0, 0.05, 0, 0, 0, 0], "chunking": 1,
             }),
-            PolicySpec::NanAt(n) => serde_json::json!({"kind": "diagnostic", "name": "nan-at", "step": n}),
+            PolicySpec::NanAt(n) => {
+                serde_json::json!({"kind": "diagnostic", "name": "nan-at", "step": n})
+            }
         }
     }
 }
@@ -69,9 +71,7 @@ impl FromStr for PolicySpec {
             "lift" => Ok(PolicySpec::Lift),
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
-                _ => Err(format!(
-                    "unknown policy {s:?}; known: random, lift, nan-at:<policy step> (diagnostic)"
-                )),
+                _ => Err(format!("unknown policy {s:?}; known: random, lift, nan-at:<policy step> (diagnostic)")),
             },
         }
     }

@@ -55,7 +55,9 @@ impl RunManifest {
             serde_json::from_str(&self.config_fingerprint()).unwrap_or_default(),
             serde_json::from_str(&other.config_fingerprint()).unwrap_or_default(),
         );
-        let (Some(a), Some(b)) = (a.as_object(), b.as_object()) else { return vec![] };
+        let (Some(a), Some(b)) = (a.as_object(), b.as_object()) else {
+            return vec![];
+        };
         a.iter()
             .filter(|(k, v)| b.get(*k) != Some(v))
             .map(|(k, v)| format!("{k}: stored {} vs now {}", b.get(k).cloned().unwrap_or_default(), v))

@@ -35,19 +35,9 @@ pub enum Suite {
 
 impl Suite {
     /// The four suites of the canonical benchmark (libero_90 is pre-training data, not reported).
-    pub const CANONICAL: [Suite; 4] = [
-        Suite::LiberoSpatial,
-        Suite::LiberoObject,
-        Suite::LiberoGoal,
-        Suite::Libero10,
-    ];
-    pub const ALL: [Suite; 5] = [
-        Suite::LiberoSpatial,
-        Suite::LiberoObject,
-        Suite::LiberoGoal,
-        Suite::Libero10,
-        Suite::Libero90,
-    ];
+    pub const CANONICAL: [Suite; 4] = [Suite::LiberoSpatial, Suite::LiberoObject, Suite::LiberoGoal, Suite::Libero10];
+    pub const ALL: [Suite; 5] =
+        [Suite::LiberoSpatial, Suite::LiberoObject, Suite::LiberoGoal, Suite::Libero10, Suite::Libero90];
 
     pub fn name(self) -> &'static str {
         match self {

@@ -26,7 +26,8 @@ fn main() {
 
 /// `PIPELINE_GIT_REVISION`: `git describe --always --dirty` of the workspace, or "unknown".
 fn record_git_revision() {
-    for p in [".git/HEAD", ".git/index", "schema/src", "sim/src", "policies/src", "udfs/src", "pipeline/src", "queries"] {
+    for p in [".git/HEAD", ".git/index", "schema/src", "sim/src", "policies/src", "udfs/src", "pipeline/src", "queries"]
+    {
         println!("cargo:rerun-if-changed=../{p}");
     }
     let rev = std::process::Command::new("git")

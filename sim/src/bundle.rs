@@ -370,9 +370,7 @@ impl TaskBundle {
 }
 
 fn read_json<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, SimError> {
-    let text = std::fs::read_to_string(path).map_err(|e| SimError::BundleCorrupt {
-        path: path.into(),
-        detail: format!("cannot read: {e}"),
-    })?;
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| SimError::BundleCorrupt { path: path.into(), detail: format!("cannot read: {e}") })?;
     serde_json::from_str(&text).map_err(|e| SimError::BundleCorrupt { path: path.into(), detail: e.to_string() })
 }

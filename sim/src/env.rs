@@ -126,9 +126,11 @@ impl LiberoEnv {
         let qpos_index = arr7(&c.qpos_index, "qpos_index")?;
         let qvel_index = arr7(&c.qvel_index, "qvel_index")?;
         let arm_actuators = arr7(&c.arm_actuators, "arm_actuators")?;
-        let gripper_actuators: [usize; 2] = c.gripper_actuators.as_slice().try_into().map_err(|_| {
-            SimError::BundleCorrupt { path: bundle.dir.join("task.json"), detail: "two gripper actuators expected".into() }
-        })?;
+        let gripper_actuators: [usize; 2] =
+            c.gripper_actuators.as_slice().try_into().map_err(|_| SimError::BundleCorrupt {
+                path: bundle.dir.join("task.json"),
+                detail: "two gripper actuators expected".into(),
+            })?;
         let ctrlrange = model.actuator_ctrlrange();
         let arm_ctrlrange = arm_actuators.map(|a| ctrlrange[a]);
         let gripper_ctrlrange = gripper_actuators.map(|a| ctrlrange[a]);
@@ -153,11 +155,7 @@ impl LiberoEnv {
         }
         let geom_bodyid = model.geom_bodyid();
         let geom_is_gripper = (0..ngeom)
-            .map(|g| {
-                model
-                    .id_to_name(MjtObj::mjOBJ_BODY, geom_bodyid[g])
-                    .is_some_and(|b| b.starts_with("gripper0_"))
-            })
+            .map(|g| model.id_to_name(MjtObj::mjOBJ_BODY, geom_bodyid[g]).is_some_and(|b| b.starts_with("gripper0_")))
             .collect();
         let reset_snapshot = ArmState::from_snapshot(c);
         Ok(LiberoEnv {

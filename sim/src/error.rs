@@ -17,7 +17,9 @@ pub enum SimError {
     Compile { path: PathBuf, detail: String },
     #[error("init state {id} out of range: task has {count} init states (0..{count})")]
     InitStateOutOfRange { id: usize, count: usize },
-    #[error("no fixture poses for env seed {seed} (episode {episode}): the bundle has seeds {available} and {episodes} episodes each; rebuild with ./setup.sh after adding the seed")]
+    #[error(
+        "no fixture poses for env seed {seed} (episode {episode}): the bundle has seeds {available} and {episodes} episodes each; rebuild with ./setup.sh after adding the seed"
+    )]
     UnknownSeed { seed: u64, episode: usize, available: String, episodes: usize },
     #[error("invalid action {action:?}: {reason}")]
     InvalidAction { action: Vec<f64>, reason: String },

@@ -102,7 +102,8 @@ impl Goal {
                     let qpos_adr = joints
                         .iter()
                         .map(|j| {
-                            let id = object_id(model, MjtObj::mjOBJ_JOINT, j, "joint").map_err(|e| err(e.to_string()))?;
+                            let id =
+                                object_id(model, MjtObj::mjOBJ_JOINT, j, "joint").map_err(|e| err(e.to_string()))?;
                             Ok(model.jnt_qposadr()[id] as usize)
                         })
                         .collect::<Result<Vec<_>, SimError>>()?;

@@ -13,18 +13,16 @@ use std::collections::BTreeMap;
 /// Compile the bundle's scene and apply its constant model overrides.
 pub fn compile(bundle: &TaskBundle) -> Result<MjModel, SimError> {
     let path = bundle.scene_path();
-    let mut model = MjModel::from_xml(&path)
-        .map_err(|e| SimError::Compile { path: path.clone(), detail: e.to_string() })?;
+    let mut model =
+        MjModel::from_xml(&path).map_err(|e| SimError::Compile { path: path.clone(), detail: e.to_string() })?;
     for (field, rows) in &bundle.task.model_overrides {
         for (row, values) in rows {
             let row: usize = row.parse().map_err(|_| SimError::BundleCorrupt {
                 path: bundle.dir.join("task.json"),
                 detail: format!("model_overrides.{field} has a non-integer row {row:?}"),
             })?;
-            apply_override(&mut model, field, row, values).map_err(|detail| SimError::BundleCorrupt {
-                path: bundle.dir.join("task.json"),
-                detail,
-            })?;
+            apply_override(&mut model, field, row, values)
+                .map_err(|detail| SimError::BundleCorrupt { path: bundle.dir.join("task.json"), detail })?;
         }
     }
     Ok(model)

@@ -8,9 +8,7 @@
 //! `success` (any policy step within the cap) equals the published first-success latch either way.
 
 use crate::steps_batch::{EpisodeKey, StepRecord, StepsBatchBuilder};
-use arrow::array::{
-    ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, RecordBatch, StringArray,
-};
+use arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, RecordBatch, StringArray};
 use arrow::buffer::OffsetBuffer;
 use arrow::datatypes::{DataType, Field};
 use libero_policies::{Observation, Policy};

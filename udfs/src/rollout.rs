@@ -22,16 +22,16 @@ use libero_policies::PolicySpec;
 use libero_schema::Suite;
 use libero_sim::SimError;
 use libero_sim::bundle::{BundleSet, TaskBundle};
-use mujoco_rs::prelude::MjModel;
 use libero_sim::env::LiberoEnv;
+use mujoco_rs::prelude::MjModel;
 use rayon::prelude::*;
 use sha2::{Digest, Sha256};
 use std::cell::RefCell;
 use std::collections::{BTreeMap, HashMap};
 use std::hash::{Hash, Hasher};
 use std::panic::AssertUnwindSafe;
-use std::sync::{Arc, Mutex, OnceLock};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
 
 /// Everything a rollout needs besides the spec rows.
 pub struct RolloutContext {
@@ -53,14 +53,19 @@ pub struct RolloutContext {
     tasks: TaskCache,
 }
 
+/// A task's bundle and its compiled model.
+type CompiledTask = Arc<(TaskBundle, MjModel)>;
+/// Filled once, by the first worker that needs the task; the others wait for it.
+type TaskSlot = Arc<OnceLock<Result<CompiledTask, SimError>>>;
+
 /// Each task's bundle and compiled model, made once per run and copied for every worker.
 #[derive(Default)]
 struct TaskCache {
-    slots: Mutex<HashMap<(Suite, u32), Arc<OnceLock<Result<Arc<(TaskBundle, MjModel)>, SimError>>>>>,
+    slots: Mutex<HashMap<(Suite, u32), TaskSlot>>,
 }
 
 impl TaskCache {
-    fn get(&self, bundles: &BundleSet, suite: Suite, task: u32) -> Result<Arc<(TaskBundle, MjModel)>, SimError> {
+    fn get(&self, bundles: &BundleSet, suite: Suite, task: u32) -> Result<CompiledTask, SimError> {
         let slot = self.slots.lock().expect("task cache lock").entry((suite, task)).or_default().clone();
         slot.get_or_init(|| {
             let bundle = bundles.load(suite, task)?;
@@ -176,7 +181,9 @@ impl ScalarUDFImpl for RolloutUdf {
                 }
                 match rest.first() {
                     Some(x @ DataType::Struct(_)) => v.push(x.clone()),
-                    Some(x) => return plan_err!("rollout(): the 5th argument (extras) must be a struct, got {x}"),
+                    Some(x) => {
+                        return plan_err!("rollout(): the 5th argument (extras) must be a struct, got {x}");
+                    }
                     None => {}
                 }
                 Ok(v)
@@ -203,16 +210,17 @@ impl ScalarUDFImpl for RolloutUdf {
         let mut units: Vec<std::ops::Range<usize>> = vec![];
         for i in 0..n {
             match units.last_mut() {
-                Some(u) if u.len() < unit_cap
-                    && suites.value(u.start) == suites.value(i)
-                    && tasks.value(u.start) == tasks.value(i) =>
+                Some(u)
+                    if u.len() < unit_cap
+                        && suites.value(u.start) == suites.value(i)
+                        && tasks.value(u.start) == tasks.value(i) =>
                 {
                     u.end = i + 1
                 }
                 _ => units.push(i..i + 1),
             }
         }
-        let results: Vec<anyhow::Result<(String, bool, i32, Option<&'static str>)>> = units
+        let results: Vec<anyhow::Result<RowResult>> = units
             .into_par_iter()
             .flat_map_iter(|unit| {
                 unit.map(|i| {
@@ -244,6 +252,9 @@ impl ScalarUDFImpl for RolloutUdf {
     }
 }
 
+/// What `rollout` returns for one row: episode key, success, policy steps, error kind.
+type RowResult = (String, bool, i32, Option<&'static str>);
+
 thread_local! {
     /// The worker's env, kept while consecutive episodes are of the same task.
     static WORKER_ENV: RefCell<Option<((Suite, u32), LiberoEnv)>> = const { RefCell::new(None) };
@@ -257,11 +268,7 @@ pub fn policy_seed(key: &EpisodeKey) -> u64 {
 }
 
 impl RolloutUdf {
-    fn run_row(
-        &self,
-        key: &EpisodeKey,
-        extras: Option<&RecordBatch>,
-    ) -> anyhow::Result<(String, bool, i32, Option<&'static str>)> {
+    fn run_row(&self, key: &EpisodeKey, extras: Option<&RecordBatch>) -> anyhow::Result<RowResult> {
         let ctx = &self.ctx;
         let suite: Suite = key.suite.parse().map_err(anyhow::Error::msg)?;
         let protocol = ctx.protocol(suite);
@@ -278,11 +285,8 @@ impl RolloutUdf {
                     match env {
                         Ok(env) => *cached = Some((task, env)),
                         Err(e) => {
-                            let instruction = ctx
-                                .bundles
-                                .entry(suite, task.1)
-                                .map(|t| t.instruction.clone())
-                                .unwrap_or_default();
+                            let instruction =
+                                ctx.bundles.entry(suite, task.1).map(|t| t.instruction.clone()).unwrap_or_default();
                             let s = EpisodeSummary::failed_to_start(instruction, EpisodeError::from_sim(&e));
                             return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
                         }

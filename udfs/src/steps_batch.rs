@@ -146,8 +146,7 @@ impl StepsBatchBuilder {
             vec![Arc::new(names), fixed_f64(self.object_pos, 3)?, fixed_f64(self.object_quat, 4)?],
             None,
         )?;
-        let contacts: StringArray =
-            self.contacts.iter().map(|&i| Some(self.object_names[i].as_str())).collect();
+        let contacts: StringArray = self.contacts.iter().map(|&i| Some(self.object_names[i].as_str())).collect();
         let columns: Vec<ArrayRef> = vec![
             Arc::new(StringArray::from(vec![k.episode_key.as_str(); n])),
             Arc::new(StringArray::from(vec![k.suite.as_str(); n])),
@@ -178,11 +177,21 @@ fn item(t: DataType) -> Arc<Field> {
 }
 
 fn fixed_f64(values: Vec<f64>, size: i32) -> Result<ArrayRef, ArrowError> {
-    Ok(Arc::new(FixedSizeListArray::try_new(item(DataType::Float64), size, Arc::new(Float64Array::from(values)), None)?))
+    Ok(Arc::new(FixedSizeListArray::try_new(
+        item(DataType::Float64),
+        size,
+        Arc::new(Float64Array::from(values)),
+        None,
+    )?))
 }
 
 fn fixed_f32(values: Vec<f32>, size: i32) -> Result<ArrayRef, ArrowError> {
-    Ok(Arc::new(FixedSizeListArray::try_new(item(DataType::Float32), size, Arc::new(Float32Array::from(values)), None)?))
+    Ok(Arc::new(FixedSizeListArray::try_new(
+        item(DataType::Float32),
+        size,
+        Arc::new(Float32Array::from(values)),
+        None,
+    )?))
 }
 
 fn list(t: DataType, values: ArrayRef, lengths: impl IntoIterator<Item = usize>) -> Result<ArrayRef, ArrowError> {
@@ -195,7 +204,8 @@ mod tests {
 
     #[test]
     fn a_batch_matches_the_steps_schema() {
-        let mut b = StepsBatchBuilder::new(EpisodeKey::new("libero_goal", 3, 12, 7), vec!["bowl".into(), "plate".into()]);
+        let mut b =
+            StepsBatchBuilder::new(EpisodeKey::new("libero_goal", 3, 12, 7), vec!["bowl".into(), "plate".into()]);
         for t in 0..3 {
             b.push(&StepRecord {
                 step: t,

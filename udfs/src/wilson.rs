@@ -116,9 +116,7 @@ pub struct WilsonAggregate {
 
 impl Default for WilsonAggregate {
     fn default() -> Self {
-        WilsonAggregate {
-            signature: Signature::user_defined(Volatility::Immutable),
-        }
+        WilsonAggregate { signature: Signature::user_defined(Volatility::Immutable) }
     }
 }
 
@@ -161,7 +159,9 @@ struct WilsonAccumulator {
 impl WilsonAccumulator {
     fn set_level(&mut self, level: f64) -> Result<()> {
         match self.level {
-            Some(l) if l != level => exec_err!("wilson(): the level must be the same for every row ({l} vs {level})"),
+            Some(l) if l != level => {
+                exec_err!("wilson(): the level must be the same for every row ({l} vs {level})")
+            }
             _ => {
                 self.level = Some(level);
                 Ok(())

@@ -21,7 +21,13 @@ fn cases() -> Vec<Case> {
         .filter(|l| !l.starts_with('#') && !l.starts_with('k'))
         .map(|l| {
             let v: Vec<&str> = l.split(',').collect();
-            Case { k: v[0].parse().unwrap(), n: v[1].parse().unwrap(), level: v[2].parse().unwrap(), lo: v[3].parse().unwrap(), hi: v[4].parse().unwrap() }
+            Case {
+                k: v[0].parse().unwrap(),
+                n: v[1].parse().unwrap(),
+                level: v[2].parse().unwrap(),
+                lo: v[3].parse().unwrap(),
+                hi: v[4].parse().unwrap(),
+            }
         })
         .collect()
 }
@@ -44,12 +50,25 @@ async fn scalar_bounds_match_statsmodels() {
         let sql = if c.level == 0.95 {
             format!("SELECT wilson_lo({k}, {n}) AS lo, wilson_hi({k}, {n}) AS hi", k = c.k, n = c.n)
         } else {
-            format!("SELECT wilson_lo({k}, {n}, {l}) AS lo, wilson_hi({k}, {n}, {l}) AS hi", k = c.k, n = c.n, l = c.level)
+            format!(
+                "SELECT wilson_lo({k}, {n}, {l}) AS lo, wilson_hi({k}, {n}, {l}) AS hi",
+                k = c.k,
+                n = c.n,
+                l = c.level
+            )
         };
         let b = &query(&ctx, &sql).await[0];
         let lo = b.column(0).as_primitive::<Float64Type>().value(0);
         let hi = b.column(1).as_primitive::<Float64Type>().value(0);
-        assert!(close(lo, c.lo) && close(hi, c.hi), "k={} n={} level={}: ours ({lo}, {hi}) statsmodels ({}, {})", c.k, c.n, c.level, c.lo, c.hi);
+        assert!(
+            close(lo, c.lo) && close(hi, c.hi),
+            "k={} n={} level={}: ours ({lo}, {hi}) statsmodels ({}, {})",
+            c.k,
+            c.n,
+            c.level,
+            c.lo,
+            c.hi
+        );
     }
     let b = &query(&ctx, "SELECT wilson_lo(0, 0) AS lo").await[0];
     assert!(b.column(0).is_null(0), "n = 0 has no interval");
@@ -63,7 +82,9 @@ async fn the_aggregate_returns_n_k_rate_and_the_bounds() {
         // n rows of which k are true, in 3 partitions' worth of batches, plus a NULL that is skipped
         let sql = format!(
             "SELECT wilson(v < {k}, {l}) AS w FROM (SELECT value AS v FROM generate_series(0, {last}) UNION ALL SELECT NULL) t",
-            k = c.k, l = c.level, last = c.n - 1
+            k = c.k,
+            l = c.level,
+            last = c.n - 1
         );
         let b = &query(&ctx, &sql).await[0];
         let w = b.column(0).as_struct();
@@ -72,7 +93,8 @@ async fn the_aggregate_returns_n_k_rate_and_the_bounds() {
         assert_eq!(get("k").as_primitive::<Int64Type>().value(0), c.k);
         let rate = get("rate").as_primitive::<Float64Type>().value(0);
         assert!(close(rate, c.k as f64 / c.n as f64));
-        let (lo, hi) = (get("lo").as_primitive::<Float64Type>().value(0), get("hi").as_primitive::<Float64Type>().value(0));
+        let (lo, hi) =
+            (get("lo").as_primitive::<Float64Type>().value(0), get("hi").as_primitive::<Float64Type>().value(0));
         assert!(close(lo, c.lo) && close(hi, c.hi), "k={} n={}: ({lo}, {hi}) vs ({}, {})", c.k, c.n, c.lo, c.hi);
     }
 }

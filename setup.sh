@@ -3,6 +3,7 @@
 # when already done:
 #   1. Debian packages (EGL/Mesa for headless rendering, ffmpeg, a font) when run as root;
 #   2. MuJoCo 3.3.7 library + headers from the PyPI wheel (third_party/, for mujoco-rs 2.3.5);
+#   2b. libtorch 2.11.0 (for tch 0.24.0) from the PyPI torch wheel, cached, linked as third_party/libtorch;
 #   3. the Python reference LIBERO env (the oracle) in a cached venv, linked as .venv;
 #   4. the task bundles of the four suites, cached and linked as data/bundles;
 #   5. `cargo build --release` of the workspace, and a smoke run of real env steps on every suite.
@@ -37,6 +38,10 @@ fi
 
 step "MuJoCo 3.3.7"
 bash scripts/setup/mujoco.sh third_party/mujoco-3.3.7
+
+step "libtorch 2.11.0 for tch 0.24.0 (CPU libraries + headers from the PyPI wheel)"
+bash scripts/setup/libtorch.sh "$CACHE/libtorch-2.11.0"
+ln -sfn "$CACHE/libtorch-2.11.0/torch" third_party/libtorch
 
 step "reference venv (hf-libero 0.1.4, robosuite 1.4.0, mujoco 3.3.7)"
 VENV_KEY=$(cat scripts/setup/reference_venv.sh | sha256sum | cut -c1-12)

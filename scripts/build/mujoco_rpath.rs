@@ -9,6 +9,11 @@ fn main() {
         record_git_revision();
     }
     println!("cargo:rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
+    println!("cargo:rerun-if-env-changed=LIBTORCH");
+    // libtorch (policies' tch): only linked where used (--as-needed), harmless elsewhere.
+    if let Ok(torch) = std::env::var("LIBTORCH") {
+        println!("cargo:rustc-link-arg=-Wl,-rpath,{torch}/lib");
+    }
     match std::env::var("MUJOCO_DYNAMIC_LINK_DIR") {
         Ok(dir) => {
             if !std::path::Path::new(&dir).join("libmujoco.so").exists() {

@@ -35,8 +35,17 @@ pub mod scene;
 
 pub use error::SimError;
 
-/// The MuJoCo library version this build is linked against (e.g. "3.3.7").
+/// The MuJoCo library version this build is linked against (e.g. "3.3.7"), as the library
+/// itself reports it (`mj_versionString`).
 pub fn mujoco_version() -> String {
-    let v = unsafe { mujoco_rs::mujoco_c::mj_version() };
-    format!("{}.{}.{}", v / 1000, (v / 10) % 100, v % 10)
+    let p = unsafe { mujoco_rs::mujoco_c::mj_versionString() };
+    unsafe { std::ffi::CStr::from_ptr(p) }.to_string_lossy().into_owned()
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_linked_mujoco_is_the_bundles_version() {
+        assert_eq!(super::mujoco_version(), libero_schema::bundle_format::MUJOCO_VERSION);
+    }
 }

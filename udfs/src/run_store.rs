@@ -57,9 +57,11 @@ impl RunStore {
         if !url.path().ends_with('/') {
             url.set_path(&format!("{}/", url.path()));
         }
-        let (store, root) = object_store::parse_url(&url).map_err(|e| {
+        // Credentials and options of cloud stores come from the environment (AWS_*, GOOGLE_*,
+        // AZURE_*; object_store ignores the variables it does not know).
+        let (store, root) = object_store::parse_url_opts(&url, std::env::vars()).map_err(|e| {
             anyhow::anyhow!(
-                "cannot open the run location {location}: {e}. Use a local path, file://, memory:// or (with the `cloud` build feature) s3://, gs://, az://"
+                "cannot open the run location {location}: {e}. Use a local path, file://, memory:// or, in a build with `--features cloud`, s3://, gs://, az://"
             )
         })?;
         let base = Url::parse(&format!("{}://{}", url.scheme(), url.authority()))?;

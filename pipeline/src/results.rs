@@ -2,7 +2,7 @@
 //! `queries/results_by_task.sql`) under a chosen success definition and cap, printed and written
 //! as CSV. Re-scoring never re-runs anything: it is the same stored steps, another query.
 
-use crate::session::{self, SuccessDefinition};
+use crate::session::{self, RunScoring};
 use anyhow::{Context, Result};
 use arrow::array::{AsArray, RecordBatch};
 use arrow::datatypes::Float64Type;
@@ -14,15 +14,8 @@ pub const BASELINE_MAX_SUCCESS: f64 = 0.05;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// The run (folder or object-store URL).
-    #[arg(long)]
-    run: String,
-    /// Success definition used to score the stored steps.
-    #[arg(long, value_enum, default_value_t = SuccessDefinition::AnyStep)]
-    success: SuccessDefinition,
-    /// Score as if episodes were capped at this many policy steps (never longer than they ran).
-    #[arg(long)]
-    cap: Option<u32>,
+    #[command(flatten)]
+    scoring: RunScoring,
     /// Folder for results.csv and results_by_task.csv.
     #[arg(long, default_value = "outputs")]
     out: PathBuf,
@@ -30,7 +23,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
-        let (ctx, store) = session::open(&args.run, args.success, args.cap).await?;
+        let (ctx, store) = args.scoring.open().await?;
         let manifest = store.read_manifest().await?.context("the run has no manifest")?;
         let suites = ctx.sql(session::queries::RESULTS).await?.collect().await?;
         let tasks = ctx.sql(session::queries::RESULTS_BY_TASK).await?.collect().await?;
@@ -39,8 +32,8 @@ pub fn run(args: Args) -> Result<()> {
         write_csv(&args.out.join("results_by_task.csv"), &tasks)?;
         println!(
             "success definition: {}{}",
-            args.success.sql_name(),
-            args.cap.map_or(String::new(), |c| format!(", cap {c} policy steps"))
+            args.scoring.success.sql_name(),
+            args.scoring.cap.map_or(String::new(), |c| format!(", cap {c} policy steps"))
         );
         println!("{}", arrow::util::pretty::pretty_format_batches(&suites)?);
         println!("wrote {}/results.csv and results_by_task.csv", args.out.display());

@@ -64,7 +64,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         pipeline_version: env!("CARGO_PKG_VERSION").to_string(),
         mujoco_version: libero_sim::mujoco_version(),
         bundle_format_version: libero_schema::bundle_format::BUNDLE_FORMAT_VERSION,
-        bundles_hash: bundles_hash(bundles)?,
+        bundles_hash: bundles_hash(&set)?,
         policy: args.policy.name(),
         policy_identity: args.policy.identity(),
         num_steps_wait: args.wait_steps as i32,
@@ -191,11 +191,11 @@ async fn print_results(location: &str, policy: &PolicySpec) -> Result<()> {
 }
 
 /// sha256 of the bundles' index and every task's provenance (which hashes every input).
-fn bundles_hash(bundles: &Path) -> Result<String> {
+fn bundles_hash(set: &BundleSet) -> Result<String> {
+    let bundles = set.root();
     let mut h = Sha256::new();
     let index = bundles.join("index.json");
     h.update(std::fs::read(&index).with_context(|| format!("reading {}", index.display()))?);
-    let set = BundleSet::open(bundles)?;
     for t in set.tasks() {
         let p = bundles.join(&t.path).join("provenance.json");
         h.update(std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?);

@@ -28,6 +28,26 @@ impl SuccessDefinition {
     }
 }
 
+/// Which run to open and how its `scored` view scores episodes (shared by `results` and `sql`).
+#[derive(clap::Args)]
+pub struct RunScoring {
+    /// The run (folder or object-store URL).
+    #[arg(long)]
+    pub run: String,
+    /// Success definition used to score the stored steps (the `scored` view).
+    #[arg(long, value_enum, default_value_t = SuccessDefinition::AnyStep)]
+    pub success: SuccessDefinition,
+    /// Score as if episodes were capped at this many policy steps (never longer than they ran).
+    #[arg(long)]
+    pub cap: Option<u32>,
+}
+
+impl RunScoring {
+    pub async fn open(&self) -> Result<(SessionContext, RunStore)> {
+        open(&self.run, self.success, self.cap).await
+    }
+}
+
 /// The SQL that derives every reported number, compiled in so the binary runs anywhere; the
 /// files in `queries/` are the source.
 pub mod queries {

@@ -4,22 +4,15 @@
 //! `--success` / `--cap`, from `queries/score.sql`). Functions: `wilson(success [, level])`,
 //! `wilson_lo(k, n [, level])`, `wilson_hi(k, n [, level])` and DataFusion's built-ins.
 
-use crate::session::{self, SuccessDefinition};
+use crate::session::RunScoring;
 use anyhow::Result;
 
 #[derive(clap::Args)]
 pub struct Args {
     /// The SQL query, e.g. "SELECT suite, wilson(success) FROM episodes GROUP BY suite".
     query: String,
-    /// The run (folder or object-store URL).
-    #[arg(long)]
-    run: String,
-    /// Success definition of the `scored` view.
-    #[arg(long, value_enum, default_value_t = SuccessDefinition::AnyStep)]
-    success: SuccessDefinition,
-    /// Episode cap of the `scored` view, in policy steps.
-    #[arg(long)]
-    cap: Option<u32>,
+    #[command(flatten)]
+    scoring: RunScoring,
     /// Print CSV instead of a table.
     #[arg(long)]
     csv: bool,
@@ -27,7 +20,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
-        let (ctx, _) = session::open(&args.run, args.success, args.cap).await?;
+        let (ctx, _) = args.scoring.open().await?;
         let batches = ctx.sql(&args.query).await?.collect().await?;
         if args.csv {
             let mut w = arrow::csv::WriterBuilder::new().with_header(true).build(std::io::stdout());

@@ -115,6 +115,8 @@ pub fn run_episode(
         return (steps, summary);
     }
     policy.reset(&instruction, policy_seed);
+    // The state after step t is what the policy sees before step t+1: read it once per step.
+    let mut obs = env.observation();
     let total = protocol.num_steps_wait + protocol.max_steps;
     for t in 0..total {
         let policy_step = t.checked_sub(protocol.num_steps_wait);
@@ -122,7 +124,6 @@ pub fn run_episode(
         let action: [f32; 7] = match policy_step {
             None => WAIT_ACTION,
             Some(p) => {
-                let obs = env.observation();
                 let input = Observation {
                     policy_step: p,
                     eef_pos: obs.eef_pos,
@@ -155,7 +156,7 @@ pub fn run_episode(
                 break;
             }
         };
-        let obs = env.observation();
+        obs = env.observation();
         let poses: Vec<([f64; 3], [f64; 4])> = obs.object_poses.iter().map(|p| (p.pos, p.quat)).collect();
         let contacts = env.gripper_contacts();
         steps.push(&StepRecord {

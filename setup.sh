@@ -80,6 +80,24 @@ if [ -n "$missing" ]; then
 fi
 ln -sfn "$GOLDEN" data/golden
 
+step "reference camera frames for the render-parity tests (MuJoCo 3.3.7, and 3.2.3 for the published look)"
+VENV323_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh | sha256sum | cut -c1-12)
+VENV323="$CACHE/ref-venv-mujoco323-$VENV323_KEY"
+bash scripts/setup/reference_venv_mujoco323.sh "$VENV323" "$VENV"
+FRAMES_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh scripts/reference/build_bundles.py \
+  scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/frames.py | sha256sum | cut -c1-12)
+FRAMES="$CACHE/frames-$FRAMES_KEY"
+if [ ! -f "$FRAMES/.complete" ]; then
+  rm -rf "$FRAMES"
+  (cd scripts/reference &&
+    "$VENV/bin/python" frames.py "$FRAMES/mujoco-3.3.7" --tasks 0 --inits 0,1,2 --steps 0,40 --golden "$GOLDEN" >/dev/null \
+      2> >(grep -v "WARNING\|^\[info\]" >&2) &&
+    "$VENV323/bin/python" frames.py "$FRAMES/mujoco-3.2.3" --tasks all --inits 0 --steps 0 >/dev/null \
+      2> >(grep -v "WARNING\|^\[info\]" >&2))
+  touch "$FRAMES/.complete"
+fi
+ln -sfn "$FRAMES" data/frames
+
 if [ "$BUILD" = 1 ]; then
   step "cargo build --release"
   cargo build --release --quiet

@@ -14,9 +14,11 @@
 
 use crate::SimError;
 use crate::bundle::{Pose, TaskBundle};
+use crate::gl::GlContext;
 use crate::gripper::Gripper;
 use crate::osc::{ARM_DOF, ArmState, OscController};
 use crate::predicates::{Goal, GoalStatus};
+use crate::render::{Frame, Rect, RenderOptions, SceneRenderer};
 use crate::scene::{self, object_id};
 use mujoco_rs::mujoco_c;
 use mujoco_rs::prelude::*;
@@ -102,6 +104,20 @@ pub struct LiberoEnv {
     geom_object: Vec<Option<u16>>,
     /// Per geom: it belongs to a gripper body (`gripper0_*`, robosuite's naming).
     geom_is_gripper: Vec<bool>,
+    /// Stove burners LIBERO shows or hides after every step (rendering only).
+    indicators: Vec<Indicator>,
+}
+
+/// A site LIBERO's `set_visualization()` toggles after every step: a stove's burner shows while
+/// the stove is on (`_post_process` in the problem classes). It changes pictures, not physics.
+#[derive(Debug, Clone)]
+struct Indicator {
+    site: usize,
+    /// qpos addresses of the object's joints; "on" if any is at or above `on_at`.
+    qpos: Vec<usize>,
+    on_at: f64,
+    /// The site's alpha in a freshly built model (a hard reset restores it).
+    alpha_after_reset: f32,
 }
 
 impl LiberoEnv {
@@ -157,6 +173,7 @@ impl LiberoEnv {
         let geom_is_gripper = (0..ngeom)
             .map(|g| model.id_to_name(MjtObj::mjOBJ_BODY, geom_bodyid[g]).is_some_and(|b| b.starts_with("gripper0_")))
             .collect();
+        let indicators = burner_indicators(task, &model)?;
         let reset_snapshot = ArmState::from_snapshot(c);
         Ok(LiberoEnv {
             data,
@@ -185,6 +202,7 @@ impl LiberoEnv {
             control_log: None,
             geom_object,
             geom_is_gripper,
+            indicators,
             bundle: bundle.clone(),
             model,
         })
@@ -242,12 +260,17 @@ impl LiberoEnv {
             )));
         }
         scene::apply_fixture_poses(&mut self.model, fixture_poses)?;
+        for ind in &self.indicators {
+            self.model.site_rgba_mut()[ind.site][3] = ind.alpha_after_reset;
+        }
         // A hard reset builds fresh MjData: zero warm-start, controls and applied forces.
         unsafe { mujoco_c::mj_resetData(self.model.ffi(), self.data_ptr()) };
         self.data.set_time(state[0]);
         self.data.qpos_mut().copy_from_slice(&state[1..1 + nq]);
         self.data.qvel_mut().copy_from_slice(&state[1 + nq..]);
         self.data.forward();
+        // LIBERO's `set_init_state` runs `_post_process()` once (env_wrapper.py:139-145).
+        self.update_indicators();
         self.osc.reset();
         self.gripper.reset();
         self.stale = Some(self.reset_snapshot.clone());
@@ -310,6 +333,7 @@ impl LiberoEnv {
         }
         self.steps += 1;
         self.check_stable()?;
+        self.update_indicators();
         Ok(StepOutcome { step: self.steps, goal: self.goal.evaluate(&self.data) })
     }
 
@@ -423,7 +447,67 @@ impl LiberoEnv {
         Ok(())
     }
 
+    /// LIBERO's `set_visualization()`: toggle a burner's alpha when its shown/hidden state is wrong
+    /// (`alpha = 1 - alpha`, exactly as the reference does it).
+    fn update_indicators(&mut self) {
+        let qpos = self.data.qpos();
+        for ind in &self.indicators {
+            let on = ind.qpos.iter().any(|&a| qpos[a] >= ind.on_at);
+            let rgba = &mut self.model.site_rgba_mut()[ind.site];
+            if (rgba[3] <= 0.0 && on) || (rgba[3] > 0.0 && !on) {
+                rgba[3] = 1.0 - rgba[3];
+            }
+        }
+    }
+
+    /// A render context for this env's model (see [`SceneRenderer::new`]; applies the look).
+    pub fn renderer(&mut self, gl: std::rc::Rc<GlContext>, options: RenderOptions) -> Result<SceneRenderer, SimError> {
+        SceneRenderer::new(gl, &mut self.model, options)
+    }
+
+    /// Draw a camera's view of the current state into a region of the renderer's buffer.
+    pub fn draw_camera(&mut self, renderer: &mut SceneRenderer, camera: usize, rect: Rect) -> Result<(), SimError> {
+        let data = self.data_ptr();
+        // SAFETY: the renderer was made from this env's model (`renderer()`), data is live.
+        unsafe { renderer.draw_camera(self.model.ffi(), data, camera, rect) }
+    }
+
+    /// One camera's frame of the current state, `width`×`height`, in the reference orientation.
+    pub fn render(
+        &mut self,
+        renderer: &mut SceneRenderer,
+        camera: &str,
+        width: u32,
+        height: u32,
+    ) -> Result<Frame, SimError> {
+        let id = renderer.camera_id(camera)?;
+        let rect = Rect::new(0, 0, width, height);
+        self.draw_camera(renderer, id, rect)?;
+        renderer.read(rect)
+    }
+
     fn data_ptr(&mut self) -> *mut mujoco_c::mjData {
         unsafe { self.data.ffi_mut() }
     }
+}
+
+/// The burners of the task's stoves (objects with a TurnOn rule and a `<name>_burner` site).
+fn burner_indicators(task: &crate::bundle::TaskInfo, model: &MjModel) -> Result<Vec<Indicator>, SimError> {
+    let jnt_qposadr = model.jnt_qposadr();
+    let mut out = Vec::new();
+    for (name, object) in &task.objects {
+        let Some(rule) = object.articulation.get("turnon") else { continue };
+        let site = model.name_to_id(MjtObj::mjOBJ_SITE, &format!("{name}_burner"));
+        if site < 0 {
+            continue;
+        }
+        let qpos = object
+            .joints
+            .iter()
+            .map(|j| Ok(jnt_qposadr[object_id(model, MjtObj::mjOBJ_JOINT, j, "joint")?] as usize))
+            .collect::<Result<Vec<_>, SimError>>()?;
+        let site = site as usize;
+        out.push(Indicator { site, qpos, on_at: rule.value, alpha_after_reset: model.site_rgba()[site][3] });
+    }
+    Ok(out)
 }

@@ -27,6 +27,12 @@ pub enum SimError {
     Unstable { step: u32, detail: String },
     #[error("goal predicate {predicate} cannot be evaluated: {detail}")]
     Predicate { predicate: String, detail: String },
+    #[error("no headless OpenGL: {detail}; {hint}")]
+    NoGl { detail: String, hint: String },
+    #[error("camera {name:?} is not in this scene; its cameras are: {available}")]
+    UnknownCamera { name: String, available: String },
+    #[error("render size {width}x{height} is not supported: {reason}")]
+    RenderSize { width: u32, height: u32, reason: String },
     #[error("{0}")]
     Other(String),
 }

@@ -9,7 +9,9 @@
 //!   model (fixture poses per episode, site colours);
 //! - [`osc`] and [`gripper`]: robosuite's OSC_POSE controller and Panda gripper, quirks included;
 //! - [`predicates`]: the BDDL goal (On, In, Open, Close, TurnOn, TurnOff, Up) as LIBERO checks it;
-//! - [`env`]: the gym-shaped [`env::LiberoEnv`] tying them together at 20 Hz (25 substeps of 2 ms).
+//! - [`env`]: the gym-shaped [`env::LiberoEnv`] tying them together at 20 Hz (25 substeps of 2 ms);
+//! - [`gl`] and [`render`]: headless EGL contexts and camera frames rendered as the reference renders
+//!   them (orientation conventions, the published stack's look, a clearly named preview mode).
 //!
 //! It knows nothing of policies, Arrow or DataFusion.
 //!
@@ -27,10 +29,12 @@
 pub mod bundle;
 pub mod env;
 mod error;
+pub mod gl;
 pub mod gripper;
 pub mod npy;
 pub mod osc;
 pub mod predicates;
+pub mod render;
 pub mod scene;
 
 pub use error::SimError;

@@ -1,0 +1,100 @@
+"""Record camera frames from the reference env for the Rust render-parity tests (set-up time).
+
+usage: frames.py OUT [--suites ...] [--tasks 0,1,...|all] [--inits 0] [--steps 0,40] [--golden DIR]
+                 [--cameras agentview,robot0_eye_in_hand] [--size 256] [--jobs J]
+
+For each task and init state k the scene is episode k after env.seed(0) (the fixture poses the
+Rust env's reset(k, 0) uses), then for each listed step s the sim state is set and the reference
+renders its cameras exactly as the published loops get them (`OffScreenRenderEnv` observations):
+  s = 0   the init state (after `set_init_state`, no step taken)
+  s > 0   the golden trajectory's state after step s (`--golden`, recorded by golden.py)
+Frames are saved as `OUT/<suite>__<NN>__init<k>__s<SSS>__<camera>.png` in the *reference
+orientation* (OpenGL row order, as `obs[...]` holds them; they look upside down), plus
+`OUT/meta.json` with the MuJoCo version that rendered them.
+
+Which MuJoCo renders is the venv's: the main reference venv (3.3.7, the linked library) or the
+published stack's venv (3.2.3, `scripts/setup/reference_venv_mujoco323.sh`).
+"""
+import argparse
+import json
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+
+import libero_ref as L
+from libero_ref import mujoco, np
+
+from PIL import Image
+
+SEED = 0
+
+
+def record(job):
+    suite, task_id, inits, steps, cameras, size, golden, out = job
+    b, task, bddl = L.task_of(suite, task_id)
+    env = L.make_env(bddl, has_offscreen_renderer=True, use_camera_obs=True, camera_names=cameras,
+                     camera_heights=size, camera_widths=size)
+    init_states = b.get_task_init_states(task_id)
+    m0 = mujoco.MjModel.from_xml_string(env.env.model.get_xml())
+    xml_poses = {}
+    for body in L.fixture_root_bodies(env):
+        bid = mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_BODY, body)
+        xml_poses[body] = dict(pos=m0.body_pos[bid].tolist(), quat=m0.body_quat[bid].tolist())
+    written = 0
+    for k in inits:
+        # Episode k's fixture poses: k cheap soft resets after env.seed(SEED), then the hard reset.
+        env.env.hard_reset = False
+        env.seed(SEED)
+        for _ in range(k):
+            L.set_fixture_poses(env.sim.model._model, xml_poses)
+            env.reset()
+        env.env.hard_reset = True
+        env.reset()
+        for s in steps:
+            if s == 0:
+                state = init_states[k]
+            else:
+                states = np.load(os.path.join(golden, f"{suite}__{task_id:02d}__init{k}", "states.npy"))
+                state = states[s - 1]
+            obs = env.set_init_state(state)
+            for cam in cameras:
+                img = np.asarray(obs[f"{cam}_image"], dtype=np.uint8)
+                name = f"{suite}__{task_id:02d}__init{k}__s{s:03d}__{cam}.png"
+                Image.fromarray(img).save(os.path.join(out, name))
+                written += 1
+    env.close()
+    return written
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("out")
+    ap.add_argument("--suites", default="libero_spatial,libero_object,libero_goal,libero_10")
+    ap.add_argument("--tasks", default="0")
+    ap.add_argument("--inits", default="0")
+    ap.add_argument("--steps", default="0")
+    ap.add_argument("--golden", default=None)
+    ap.add_argument("--cameras", default="agentview,robot0_eye_in_hand")
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    args = ap.parse_args()
+    steps = [int(x) for x in args.steps.split(",")]
+    if any(s > 0 for s in steps) and not args.golden:
+        sys.exit("frames.py: steps > 0 need --golden (the golden trajectories' states)")
+    os.makedirs(args.out, exist_ok=True)
+    inits = [int(x) for x in args.inits.split(",")]
+    cameras = args.cameras.split(",")
+    jobs = []
+    for s in args.suites.split(","):
+        n = L.benchmark.get_benchmark_dict()[s]().n_tasks
+        tasks = range(n) if args.tasks == "all" else [int(x) for x in args.tasks.split(",")]
+        jobs += [(s, t, inits, steps, cameras, args.size, args.golden, args.out) for t in tasks]
+    with ProcessPoolExecutor(max_workers=args.jobs) as ex:
+        n = sum(ex.map(record, jobs))
+    json.dump(dict(mujoco=mujoco.__version__, size=args.size, seed=SEED, orientation="reference (OpenGL rows)"),
+              open(os.path.join(args.out, "meta.json"), "w"))
+    print(f"{n} frames from mujoco {mujoco.__version__} -> {args.out}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()

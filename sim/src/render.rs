@@ -1,0 +1,378 @@
+//! Camera frames, rendered exactly as the reference renders them.
+//!
+//! The reference (robosuite 1.4's `MjRenderContextOffscreen`) renders with MuJoCo's own renderer:
+//! `mjv_updateScene` over all categories with default `mjvOption` except that collision geoms
+//! (group 0) are hidden, a scene of at most 1000 geoms,
+//! `mjr_render` into the offscreen buffer and `mjr_readPixels`. [`SceneRenderer`] does the same
+//! calls on the same library, so on the same GL stack the pixels are identical.
+//!
+//! # Orientation: three conventions, named by [`Orientation`]
+//! - [`Orientation::Reference`]: what `mjr_readPixels` and the reference env return
+//!   (`obs["agentview_image"]`, robosuite's `IMAGE_CONVENTION = "opengl"`): row 0 is the **bottom**
+//!   of the picture, so it looks upside down when saved as-is.
+//! - [`Orientation::Upright`]: what a person should see: `reference[::-1]` (rows reversed).
+//! - [`Orientation::Policy`]: what the published OpenVLA / openpi LIBERO loops feed a policy:
+//!   `reference[::-1, ::-1]`, a 180° rotation of the reference array (equivalently, the upright
+//!   picture mirrored left-right). Policies were trained on images stored this way.
+//!
+//! # Look
+//! Policies were trained and published on MuJoCo ≤ 3.2.3. From 3.3.3 MuJoCo honours the sRGB tag
+//! of PNG textures, which makes libero_object's floor far darker (LIBERO issue #88). [`Look`]
+//! chooses between the published stack's look (the default: every texture treated as linear, as
+//! 3.2.3 did) and the look of the 3.3.7 library as it is. [`Quality::Preview`] drops shadows,
+//! reflections and multisampling for fast pictures; it is never the default and never what a
+//! policy should see.
+
+use crate::SimError;
+use crate::gl::GlContext;
+use mujoco_rs::mujoco_c as c;
+use mujoco_rs::prelude::MjModel;
+use std::ffi::CString;
+use std::rc::Rc;
+
+/// The image size the published evaluations render at.
+pub const DEFAULT_SIZE: u32 = 256;
+/// robosuite's scene capacity; geoms beyond it would be dropped, as in the reference.
+const MAX_GEOM: i32 = 1000;
+/// robosuite's font scale (only matters for text overlays).
+const FONT_SCALE: i32 = c::mjtFontScale::mjFONTSCALE_150 as i32;
+
+/// Texture colour semantics, i.e. which MuJoCo's pictures these are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Look {
+    /// MuJoCo 3.2.3, the published evaluations' stack: texture data used as linear colour, whatever
+    /// the PNG says (3.2.3 had no colour spaces). Forces `tex_colorspace = linear`.
+    #[default]
+    Mujoco323,
+    /// The linked MuJoCo 3.3.7 as it is: PNGs tagged sRGB are decoded as sRGB (darker).
+    Mujoco337,
+}
+
+impl Look {
+    pub fn name(self) -> &'static str {
+        match self {
+            Look::Mujoco323 => "mujoco-3.2.3",
+            Look::Mujoco337 => "mujoco-3.3.7",
+        }
+    }
+
+    /// Set the model's texture colour spaces; must happen before a render context uploads them.
+    pub fn apply(self, model: &mut MjModel) {
+        if self == Look::Mujoco337 {
+            return;
+        }
+        let m = unsafe { model.ffi_mut() };
+        for i in 0..m.ntex as usize {
+            unsafe { *m.tex_colorspace.add(i) = c::mjtColorSpace::mjCOLORSPACE_LINEAR as i32 };
+        }
+    }
+}
+
+impl std::str::FromStr for Look {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "mujoco-3.2.3" | "published" => Ok(Look::Mujoco323),
+            "mujoco-3.3.7" => Ok(Look::Mujoco337),
+            other => Err(format!("unknown look {other:?}; use mujoco-3.2.3 (the published stack) or mujoco-3.3.7")),
+        }
+    }
+}
+
+/// Render quality. Only [`Quality::Reference`] is what the reference (and a policy) sees.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Quality {
+    /// The scene's own settings: shadows, reflections, 4× multisampling (robosuite's defaults).
+    #[default]
+    Reference,
+    /// No shadows, reflections or multisampling: ~10× faster on a CPU, for previews only.
+    Preview,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Orientation {
+    Reference,
+    Upright,
+    Policy,
+}
+
+/// An RGB frame, 3 bytes per pixel, rows in the order its [`Orientation`] says.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<u8>,
+    pub orientation: Orientation,
+}
+
+impl Frame {
+    /// The picture as a person sees it (rows reversed from the reference order).
+    pub fn upright(&self) -> Frame {
+        match self.orientation {
+            Orientation::Upright => self.clone(),
+            Orientation::Reference => Frame { rgb: self.rows_reversed(), orientation: Orientation::Upright, ..*self },
+            Orientation::Policy => Frame { rgb: self.mirrored(), orientation: Orientation::Upright, ..*self },
+        }
+    }
+
+    /// The array OpenVLA / openpi feed a policy: the reference array rotated by 180°.
+    pub fn policy_view(&self) -> Frame {
+        let reference = self.reference();
+        let mut rgb = reference.rgb;
+        let px: &mut [[u8; 3]] = bytemuck_pixels(&mut rgb);
+        px.reverse();
+        Frame { rgb, orientation: Orientation::Policy, ..*self }
+    }
+
+    /// Back to the reference order (what the reference env returns).
+    pub fn reference(&self) -> Frame {
+        match self.orientation {
+            Orientation::Reference => self.clone(),
+            Orientation::Upright => Frame { rgb: self.rows_reversed(), orientation: Orientation::Reference, ..*self },
+            Orientation::Policy => {
+                let mut rgb = self.rgb.clone();
+                bytemuck_pixels(&mut rgb).reverse();
+                Frame { rgb, orientation: Orientation::Reference, ..*self }
+            }
+        }
+    }
+
+    fn rows_reversed(&self) -> Vec<u8> {
+        let row = self.width as usize * 3;
+        self.rgb.chunks_exact(row).rev().flatten().copied().collect()
+    }
+
+    fn mirrored(&self) -> Vec<u8> {
+        let row = self.width as usize * 3;
+        let mut out = Vec::with_capacity(self.rgb.len());
+        for r in self.rgb.chunks_exact(row) {
+            out.extend(r.chunks_exact(3).rev().flatten());
+        }
+        out
+    }
+
+    /// Peak signal-to-noise ratio against another frame of the same size and orientation, in dB
+    /// (`f64::INFINITY` when identical).
+    pub fn psnr(&self, other: &Frame) -> f64 {
+        assert_eq!((self.width, self.height), (other.width, other.height), "frame sizes differ");
+        assert_eq!(self.orientation, other.orientation, "frame orientations differ");
+        let se: f64 = self.rgb.iter().zip(&other.rgb).map(|(&a, &b)| (a as f64 - b as f64).powi(2)).sum();
+        let mse = se / self.rgb.len() as f64;
+        if mse == 0.0 { f64::INFINITY } else { 10.0 * (255.0f64 * 255.0 / mse).log10() }
+    }
+
+    pub fn mean_brightness(&self) -> f64 {
+        self.rgb.iter().map(|&v| v as f64).sum::<f64>() / self.rgb.len() as f64
+    }
+}
+
+fn bytemuck_pixels(rgb: &mut [u8]) -> &mut [[u8; 3]] {
+    assert_eq!(rgb.len() % 3, 0);
+    // SAFETY: [u8; 3] has alignment 1 and no padding.
+    unsafe { std::slice::from_raw_parts_mut(rgb.as_mut_ptr().cast::<[u8; 3]>(), rgb.len() / 3) }
+}
+
+/// A rectangle of the offscreen buffer, in pixels from the bottom-left (OpenGL's convention).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Rect {
+    pub left: u32,
+    pub bottom: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Rect {
+    pub fn new(left: u32, bottom: u32, width: u32, height: u32) -> Self {
+        Rect { left, bottom, width, height }
+    }
+    fn ffi(self) -> c::mjrRect {
+        c::mjrRect {
+            left: self.left as i32,
+            bottom: self.bottom as i32,
+            width: self.width as i32,
+            height: self.height as i32,
+        }
+    }
+}
+
+/// Render settings fixed when a [`SceneRenderer`] is made.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RenderOptions {
+    pub look: Look,
+    pub quality: Quality,
+    /// The largest picture (or panel of pictures) that will be read back; 0 keeps the model's
+    /// offscreen size (640×480 in LIBERO scenes), which is what the reference uses.
+    pub max_width: u32,
+    pub max_height: u32,
+}
+
+/// MuJoCo's render context and scene for one compiled model, on this thread's GL context.
+///
+/// Made per (thread, task model): it uploads the model's meshes and textures (~0.5–1 s on llvmpipe).
+pub struct SceneRenderer {
+    // Drop order: the MuJoCo context needs the GL context alive and current.
+    con: Box<c::mjrContext>,
+    scn: Box<c::mjvScene>,
+    opt: Box<c::mjvOption>,
+    pert: Box<c::mjvPerturb>,
+    cam: Box<c::mjvCamera>,
+    cameras: Vec<String>,
+    options: RenderOptions,
+    buffer: (u32, u32),
+    _gl: Rc<GlContext>,
+}
+
+impl SceneRenderer {
+    /// Apply the look to `model` (texture colour spaces) and upload it to a new render context.
+    pub fn new(gl: Rc<GlContext>, model: &mut MjModel, options: RenderOptions) -> Result<Self, SimError> {
+        options.look.apply(model);
+        let m = unsafe { model.ffi_mut() };
+        if options.quality == Quality::Preview {
+            m.vis.quality.offsamples = 0;
+        }
+        m.vis.global.offwidth = m.vis.global.offwidth.max(options.max_width as i32);
+        m.vis.global.offheight = m.vis.global.offheight.max(options.max_height as i32);
+        let buffer = (m.vis.global.offwidth as u32, m.vis.global.offheight as u32);
+        let cameras = (0..m.ncam).map(|i| name_of(model, c::mjtObj::mjOBJ_CAMERA, i)).collect();
+        let m = model.ffi();
+        // SAFETY: zeroed structs are what MuJoCo's default functions expect to fill in.
+        unsafe {
+            let mut con: Box<c::mjrContext> = Box::new(std::mem::zeroed());
+            c::mjr_defaultContext(&mut *con);
+            c::mjr_makeContext(m, &mut *con, FONT_SCALE);
+            c::mjr_setBuffer(c::mjtFramebuffer::mjFB_OFFSCREEN as i32, &mut *con);
+            if con.currentBuffer != c::mjtFramebuffer::mjFB_OFFSCREEN as i32 {
+                return Err(SimError::NoGl {
+                    detail: "MuJoCo could not make its offscreen framebuffer".into(),
+                    hint: "check that the GL driver supports framebuffer objects (Mesa ≥ 20 or an NVIDIA driver)"
+                        .into(),
+                });
+            }
+            let mut scn: Box<c::mjvScene> = Box::new(std::mem::zeroed());
+            c::mjv_defaultScene(&mut *scn);
+            c::mjv_makeScene(m, &mut *scn, MAX_GEOM);
+            if options.quality == Quality::Preview {
+                scn.flags[c::mjtRndFlag::mjRND_SHADOW as usize] = 0;
+                scn.flags[c::mjtRndFlag::mjRND_REFLECTION as usize] = 0;
+            }
+            let mut opt: Box<c::mjvOption> = Box::new(std::mem::zeroed());
+            c::mjv_defaultOption(&mut *opt);
+            // robosuite's `_reset_internal` (environments/base.py:297): collision meshes (group 0)
+            // hidden (`render_collision_mesh=False`), visual meshes (group 1) shown.
+            opt.geomgroup[0] = 0;
+            opt.geomgroup[1] = 1;
+            let mut pert: Box<c::mjvPerturb> = Box::new(std::mem::zeroed());
+            c::mjv_defaultPerturb(&mut *pert);
+            pert.active = 0;
+            pert.select = 0;
+            pert.skinselect = -1;
+            let mut cam: Box<c::mjvCamera> = Box::new(std::mem::zeroed());
+            c::mjv_defaultCamera(&mut *cam);
+            Ok(SceneRenderer { con, scn, opt, pert, cam, cameras, options, buffer, _gl: gl })
+        }
+    }
+
+    pub fn options(&self) -> RenderOptions {
+        self.options
+    }
+
+    /// The scene's camera names, in model order.
+    pub fn cameras(&self) -> &[String] {
+        &self.cameras
+    }
+
+    /// The index of a camera by name; an unknown name lists the ones that exist.
+    pub fn camera_id(&self, name: &str) -> Result<usize, SimError> {
+        self.cameras
+            .iter()
+            .position(|c| c == name)
+            .ok_or_else(|| SimError::UnknownCamera { name: name.into(), available: self.cameras.join(", ") })
+    }
+
+    fn check_rect(&self, rect: Rect) -> Result<(), SimError> {
+        let (w, h) = self.buffer;
+        if rect.width == 0 || rect.height == 0 || rect.left + rect.width > w || rect.bottom + rect.height > h {
+            return Err(SimError::RenderSize {
+                width: rect.width,
+                height: rect.height,
+                reason: format!(
+                    "the region at ({}, {}) does not fit the {w}x{h} offscreen buffer; ask for a larger \
+                     max_width/max_height in RenderOptions",
+                    rect.left, rect.bottom
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// Draw one camera's view of the current state into `rect` of the offscreen buffer.
+    ///
+    /// # Safety
+    /// `model`/`data` must be the model this renderer was made from and a live data of it.
+    pub(crate) unsafe fn draw_camera(
+        &mut self,
+        model: &c::mjModel,
+        data: *mut c::mjData,
+        camera: usize,
+        rect: Rect,
+    ) -> Result<(), SimError> {
+        self.check_rect(rect)?;
+        self.cam.type_ = c::mjtCamera::mjCAMERA_FIXED as i32;
+        self.cam.fixedcamid = camera as i32;
+        unsafe {
+            c::mjv_updateScene(
+                model,
+                data,
+                &*self.opt,
+                &*self.pert,
+                &mut *self.cam,
+                c::mjtCatBit::mjCAT_ALL as i32,
+                &mut *self.scn,
+            );
+            c::mjr_render(rect.ffi(), &mut *self.scn, &*self.con);
+        }
+        Ok(())
+    }
+
+    /// Fill `rect` with a colour and write `text` in it (top-left, MuJoCo's built-in font; lines
+    /// split at `\n`).
+    pub fn draw_text(&mut self, rect: Rect, text: &str, background: [f32; 3]) -> Result<(), SimError> {
+        self.check_rect(rect)?;
+        let text = CString::new(text.replace('\0', " ")).expect("no NUL left");
+        let empty = CString::default();
+        unsafe {
+            c::mjr_rectangle(rect.ffi(), background[0], background[1], background[2], 1.0);
+            c::mjr_overlay(
+                c::mjtFont::mjFONT_NORMAL as i32,
+                c::mjtGridPos::mjGRID_TOPLEFT as i32,
+                rect.ffi(),
+                text.as_ptr(),
+                empty.as_ptr(),
+                &*self.con,
+            );
+        }
+        Ok(())
+    }
+
+    /// Read `rect` of the offscreen buffer back, in the reference orientation.
+    pub fn read(&mut self, rect: Rect) -> Result<Frame, SimError> {
+        self.check_rect(rect)?;
+        let mut rgb = vec![0u8; rect.width as usize * rect.height as usize * 3];
+        unsafe { c::mjr_readPixels(rgb.as_mut_ptr(), std::ptr::null_mut(), rect.ffi(), &*self.con) };
+        Ok(Frame { width: rect.width, height: rect.height, rgb, orientation: Orientation::Reference })
+    }
+}
+
+impl Drop for SceneRenderer {
+    fn drop(&mut self) {
+        unsafe {
+            c::mjr_freeContext(&mut *self.con);
+            c::mjv_freeScene(&mut *self.scn);
+        }
+    }
+}
+
+fn name_of(model: &MjModel, kind: c::mjtObj, id: i32) -> String {
+    let p = unsafe { c::mj_id2name(model.ffi(), kind as i32, id) };
+    if p.is_null() { format!("#{id}") } else { unsafe { std::ffi::CStr::from_ptr(p) }.to_string_lossy().into_owned() }
+}

@@ -1,0 +1,141 @@
+//! Render parity: our camera frames against the reference env's, for the same sim state.
+//!
+//! `data/frames/mujoco-3.3.7/` holds frames the reference env rendered with the library we link
+//! (task 0 of each suite, init states 0–2, the init state and the golden state after step 40);
+//! `data/frames/mujoco-3.2.3/` holds frames the reference env rendered on the published stack's
+//! MuJoCo (every task, init state 0). Both are made at set-up by `scripts/reference/frames.py`.
+
+use libero_e2e::{bundles, golden_dir, read_npy, repo_root};
+use libero_sim::SimError;
+use libero_sim::env::LiberoEnv;
+use libero_sim::gl::GlContext;
+use libero_sim::render::{Frame, Look, Orientation, RenderOptions};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
+
+/// One reference frame: `<suite>__<NN>__init<k>__s<SSS>__<camera>.png`.
+struct ReferenceFrame {
+    path: PathBuf,
+    suite: String,
+    task_id: u32,
+    init: usize,
+    step: usize,
+    camera: String,
+}
+
+fn reference_frames(stack: &str) -> Vec<ReferenceFrame> {
+    let dir = repo_root().join("data/frames").join(stack);
+    assert!(dir.exists(), "no reference frames at {}: run ./setup.sh first", dir.display());
+    let mut out: Vec<ReferenceFrame> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| {
+            let path = e.unwrap().path();
+            let name = path.file_stem()?.to_str()?.to_string();
+            if path.extension()? != "png" {
+                return None;
+            }
+            let parts: Vec<&str> = name.split("__").collect();
+            let [suite, task, init, step, camera] = parts[..] else { panic!("unexpected frame name {name}") };
+            Some(ReferenceFrame {
+                suite: suite.into(),
+                task_id: task.parse().unwrap(),
+                init: init.trim_start_matches("init").parse().unwrap(),
+                step: step.trim_start_matches('s').parse().unwrap(),
+                camera: camera.into(),
+                path,
+            })
+        })
+        .collect();
+    out.sort_by(|a, b| a.path.cmp(&b.path));
+    assert!(!out.is_empty(), "no frames in {}", dir.display());
+    out
+}
+
+fn read_png(path: &Path) -> Frame {
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgb, "{}", path.display());
+    buf.truncate(info.buffer_size());
+    Frame { width: info.width, height: info.height, rgb: buf, orientation: Orientation::Reference }
+}
+
+/// Render every reference frame's state with `look`; returns (frame name, PSNR, our mean brightness,
+/// theirs) per frame. Tasks are compiled once each.
+fn render_like(frames: &[ReferenceFrame], look: Look) -> Vec<(String, f64, f64, f64)> {
+    let set = bundles();
+    let gl = Rc::new(GlContext::new().unwrap());
+    let mut by_task: BTreeMap<(String, u32), Vec<&ReferenceFrame>> = BTreeMap::new();
+    for f in frames {
+        by_task.entry((f.suite.clone(), f.task_id)).or_default().push(f);
+    }
+    let mut out = Vec::new();
+    for ((suite, task_id), frames) in by_task {
+        let bundle = set.load(suite.parse().unwrap(), task_id).unwrap();
+        let mut env = LiberoEnv::new(&bundle).unwrap();
+        let mut renderer = env.renderer(gl.clone(), RenderOptions { look, ..Default::default() }).unwrap();
+        for f in frames {
+            let theirs = read_png(&f.path);
+            let poses = bundle.fixture_poses(0, f.init).unwrap().clone();
+            let state = if f.step == 0 {
+                bundle.init_state(f.init).unwrap().to_vec()
+            } else {
+                let dir = golden_dir().join(format!("{suite}__{task_id:02}__init{}", f.init));
+                read_npy(&dir.join("states.npy")).row(f.step - 1).to_vec()
+            };
+            env.reset_to(&poses, &state).unwrap();
+            let ours = env.render(&mut renderer, &f.camera, theirs.width, theirs.height).unwrap();
+            let name = f.path.file_stem().unwrap().to_string_lossy().into_owned();
+            out.push((name, ours.psnr(&theirs), ours.mean_brightness(), theirs.mean_brightness()));
+        }
+    }
+    for (name, psnr, ours, theirs) in &out {
+        println!("{name:<60} PSNR {psnr:>6.1} dB   brightness ours {ours:>6.1} reference {theirs:>6.1}");
+    }
+    out
+}
+
+#[test]
+fn frames_match_the_reference_env_on_the_linked_mujoco() {
+    let frames = reference_frames("mujoco-3.3.7");
+    let results = render_like(&frames, Look::Mujoco337);
+    let identical = results.iter().filter(|r| r.1.is_infinite()).count();
+    println!("{identical} of {} frames identical to the reference", results.len());
+    let bad: Vec<_> = results.iter().filter(|r| r.1 < 40.0).collect();
+    assert!(bad.is_empty(), "frames below 40 dB against the reference (same MuJoCo): {bad:?}");
+}
+
+#[test]
+fn the_default_look_is_the_published_stacks_on_every_task() {
+    assert_eq!(Look::default(), Look::Mujoco323);
+    let frames = reference_frames("mujoco-3.2.3");
+    let results = render_like(&frames, Look::default());
+    let worst = results.iter().map(|r| r.1).fold(f64::INFINITY, f64::min);
+    println!("worst PSNR against MuJoCo 3.2.3 frames: {worst:.1} dB over {} frames", results.len());
+    let bad: Vec<_> = results.iter().filter(|r| r.1 < 40.0).collect();
+    assert!(bad.is_empty(), "frames below 40 dB against the published stack (MuJoCo 3.2.3): {bad:?}");
+    // The control: without the look, libero_object is visibly darker than the published frames.
+    let object: Vec<ReferenceFrame> =
+        frames.into_iter().filter(|f| f.suite == "libero_object" && f.camera == "agentview").collect();
+    let raw = render_like(&object, Look::Mujoco337);
+    let darker = raw.iter().filter(|r| r.1 < 30.0 && r.2 < r.3 - 10.0).count();
+    assert!(darker > raw.len() / 2, "MuJoCo 3.3.7's own look should differ on libero_object: {raw:?}");
+}
+
+#[test]
+fn an_unknown_camera_lists_the_scene_cameras() {
+    let bundle = bundles().load("libero_spatial".parse().unwrap(), 0).unwrap();
+    let mut env = LiberoEnv::new(&bundle).unwrap();
+    env.reset(0, 0).unwrap();
+    let gl = Rc::new(GlContext::new().unwrap());
+    let mut renderer = env.renderer(gl, RenderOptions::default()).unwrap();
+    let err = env.render(&mut renderer, "wrist", 64, 64).unwrap_err();
+    assert!(matches!(err, SimError::UnknownCamera { .. }), "{err}");
+    let msg = err.to_string();
+    assert!(msg.contains("agentview") && msg.contains("robot0_eye_in_hand"), "{msg}");
+    // A frame larger than the offscreen buffer is refused with the fix named.
+    let err = env.render(&mut renderer, "agentview", 4096, 4096).unwrap_err().to_string();
+    assert!(err.contains("max_width"), "{err}");
+}

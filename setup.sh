@@ -107,5 +107,7 @@ if [ "$BUILD" = 1 ]; then
   "$P" specs --suites libero_spatial,libero_object --trials 1 -o outputs/smoke/specs.parquet
   "$P" run outputs/smoke/specs.parquet --out outputs/smoke/lift --policy lift
   "$P" results --run outputs/smoke/lift --out outputs/smoke
+  step "smoke pictures: outputs/smoke/<suite>.png (agentview | eye-in-hand, task 0, init 0)"
+  "$P" smoke --out outputs/smoke
 fi
 step "set-up done: bundles in data/bundles -> $BUNDLES"

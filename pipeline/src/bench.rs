@@ -17,6 +17,24 @@ use std::time::Instant;
 pub enum Bench {
     /// Env steps/s: Rust env vs the Python reference vs raw MuJoCo (no rendering).
     Sim(SimArgs),
+    /// Camera frames/s (agentview + eye-in-hand): Rust renderer vs the Python reference's.
+    Render(RenderArgs),
+}
+
+#[derive(clap::Args)]
+pub struct RenderArgs {
+    /// Camera pairs rendered per measurement.
+    #[arg(long, default_value_t = 30)]
+    frames: u32,
+    /// Camera size in pixels.
+    #[arg(long, default_value_t = libero_sim::render::DEFAULT_SIZE)]
+    size: u32,
+    /// Suites to measure (task 0 of each).
+    #[arg(long, value_delimiter = ',', default_value = "libero_spatial,libero_object,libero_goal,libero_10")]
+    suites: Vec<Suite>,
+    /// Python of the reference venv; `none` skips the reference measurement.
+    #[arg(long, default_value = ".venv/bin/python")]
+    python: PathBuf,
 }
 
 #[derive(clap::Args)]
@@ -38,6 +56,7 @@ pub struct SimArgs {
 pub fn run(bundles: &Path, bench: Bench) -> Result<()> {
     match bench {
         Bench::Sim(args) => sim(bundles, args),
+        Bench::Render(args) => render(bundles, args),
     }
 }
 
@@ -101,6 +120,79 @@ fn sim(bundles: &Path, args: SimArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Frames/s of the two policy cameras, rendered from one state (no physics in the timed loop).
+fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
+    use libero_sim::gl::GlContext;
+    use libero_sim::render::{Quality, RenderOptions};
+    let set = BundleSet::open(bundles)?;
+    let gl = std::rc::Rc::new(GlContext::new()?);
+    println!(
+        "camera pairs/s (agentview + robot0_eye_in_hand, {0}x{0}), {1} pairs, 1 thread, GL vendor {2:?}, device {3:?}",
+        args.size,
+        args.frames,
+        gl.vendor(),
+        gl.device()
+    );
+    println!(
+        "{:<15} {:>14} {:>14} {:>14} {:>10} {:>12}",
+        "suite", "rust reference", "rust preview", "python ref", "rust/py", "ms per pair"
+    );
+    for suite in &args.suites {
+        let bundle = set.load(*suite, 0)?;
+        let mut env = LiberoEnv::new(&bundle)?;
+        env.reset(0, 0)?;
+        let mut rate = |quality| -> Result<f64> {
+            let options = RenderOptions { quality, ..Default::default() };
+            let mut renderer = env.renderer(gl.clone(), options)?;
+            for cam in crate::smoke::CAMERAS {
+                env.render(&mut renderer, cam, args.size, args.size)?; // warm-up
+            }
+            let t0 = Instant::now();
+            for _ in 0..args.frames {
+                for cam in crate::smoke::CAMERAS {
+                    env.render(&mut renderer, cam, args.size, args.size)?;
+                }
+            }
+            Ok(args.frames as f64 / t0.elapsed().as_secs_f64())
+        };
+        let reference = rate(Quality::Reference)?;
+        let preview = rate(Quality::Preview)?;
+        let py = if args.python.as_os_str() == "none" {
+            None
+        } else {
+            Some(python_render_rate(&args.python, *suite, args.frames, args.size)?)
+        };
+        println!(
+            "{:<15} {:>14.1} {:>14.1} {:>14} {:>10} {:>12.1}",
+            suite.name(),
+            reference,
+            preview,
+            py.map_or("-".into(), |p| format!("{p:.1}")),
+            py.map_or("-".into(), |p| format!("{:.2}x", reference / p)),
+            1000.0 / reference,
+        );
+    }
+    Ok(())
+}
+
+fn python_render_rate(python: &Path, suite: Suite, frames: u32, size: u32) -> Result<f64> {
+    let script = Path::new("scripts/reference/bench_render.py");
+    let out = Command::new(python)
+        .arg(script)
+        .args([suite.name(), "0", &frames.to_string(), &size.to_string()])
+        .output()
+        .with_context(|| {
+            format!("running {} {} (the reference venv; see ./setup.sh)", python.display(), script.display())
+        })?;
+    if !out.status.success() {
+        bail!("reference render benchmark failed: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text.lines().rev().find(|l| l.starts_with('{')).context("no JSON line from bench_render.py")?;
+    let v: serde_json::Value = serde_json::from_str(line)?;
+    v["pairs_per_s"].as_f64().context("pairs_per_s missing")
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

@@ -4,12 +4,15 @@
 //! own module; this file only parses arguments and dispatches.
 
 mod bench;
+mod media;
 mod results;
 mod run;
 mod session;
+mod smoke;
 mod specs;
 mod sql;
 mod tasks;
+mod video;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -37,6 +40,10 @@ enum Command {
     Results(results::Args),
     /// Ad-hoc SQL over a run (tables specs, steps, episodes, manifest, scored).
     Sql(sql::Args),
+    /// One picture per suite (agentview | eye-in-hand, task 0, init 0) to outputs/smoke/.
+    Smoke(smoke::Args),
+    /// MP4s of stored episodes, made by replaying their actions (checks determinism).
+    Video(video::Args),
     /// Benchmarks that print figures (e.g. `pipeline bench sim`).
     #[command(subcommand)]
     Bench(bench::Bench),
@@ -50,6 +57,8 @@ fn main() -> anyhow::Result<()> {
         Command::Run(args) => run::run(&cli.bundles, args),
         Command::Results(args) => results::run(args),
         Command::Sql(args) => sql::run(args),
+        Command::Smoke(args) => smoke::run(&cli.bundles, args),
+        Command::Video(args) => video::run(&cli.bundles, args),
         Command::Bench(b) => bench::run(&cli.bundles, b),
     }
 }

@@ -220,17 +220,22 @@ impl ScalarUDFImpl for RolloutUdf {
                 _ => units.push(i..i + 1),
             }
         }
-        let results: Vec<anyhow::Result<RowResult>> = units
-            .into_par_iter()
-            .flat_map_iter(|unit| {
-                unit.map(|i| {
-                    let key = EpisodeKey::new(suites.value(i), tasks.value(i), inits.value(i), seeds.value(i));
-                    let extras = extras.as_ref().map(|x| x.slice(i, 1));
-                    self.run_row(&key, extras.as_ref())
+        // Inside `rayon::scope` so that even a single unit runs on a rayon worker: a parallel
+        // iterator runs an unsplit item on the calling thread, here a tokio worker, where the
+        // store's `block_on` would panic.
+        let results: Vec<anyhow::Result<RowResult>> = rayon::scope(|_| {
+            units
+                .into_par_iter()
+                .flat_map_iter(|unit| {
+                    unit.map(|i| {
+                        let key = EpisodeKey::new(suites.value(i), tasks.value(i), inits.value(i), seeds.value(i));
+                        let extras = extras.as_ref().map(|x| x.slice(i, 1));
+                        self.run_row(&key, extras.as_ref())
+                    })
+                    .collect::<Vec<_>>()
                 })
-                .collect::<Vec<_>>()
-            })
-            .collect();
+                .collect()
+        });
         let mut keys = Vec::with_capacity(n);
         let mut success = Vec::with_capacity(n);
         let mut steps = Vec::with_capacity(n);

@@ -1,0 +1,186 @@
+//! Pictures a person looks at: camera panels with a caption, PNG files and H.264 MP4 videos.
+//!
+//! Panels are composed on the GPU side of MuJoCo's renderer: the cameras are drawn side by side
+//! into one offscreen buffer and the caption is written above them with MuJoCo's built-in font,
+//! so no font or image crate is needed. Every function here returns or takes **upright** frames.
+//! MP4s are encoded by Debian's `ffmpeg` (libx264, yuv420p: what browsers play) over a pipe.
+
+use anyhow::{Context, Result, bail};
+use libero_sim::env::LiberoEnv;
+use libero_sim::render::{Frame, Orientation, Rect, SceneRenderer};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, Stdio};
+
+/// Characters per caption line per 256 px of panel width (MuJoCo's normal font at scale 150).
+const CHARS_PER_256PX: usize = 25;
+/// Pixel height of one caption line (MuJoCo's normal font at scale 150, with spacing).
+const LINE_HEIGHT: u32 = 33;
+const CAPTION_BACKGROUND: [f32; 3] = [0.08, 0.08, 0.1];
+
+/// Cameras side by side, each `size`×`size`, under a caption of `caption_lines` lines.
+#[derive(Debug, Clone)]
+pub struct PanelLayout {
+    pub cameras: Vec<String>,
+    pub size: u32,
+    pub caption_lines: u32,
+}
+
+impl PanelLayout {
+    pub fn caption_height(&self) -> u32 {
+        // Even, so that yuv420p video (2×2 chroma blocks) needs no padding.
+        (self.caption_lines * LINE_HEIGHT + 8).next_multiple_of(2)
+    }
+    pub fn width(&self) -> u32 {
+        self.size * self.cameras.len() as u32
+    }
+    pub fn height(&self) -> u32 {
+        self.size + self.caption_height()
+    }
+    /// Wrap `text` to the panel width; at most `caption_lines` lines (the last one cut with "...": the font is ASCII).
+    pub fn wrap(&self, text: &str) -> String {
+        wrap(text, CHARS_PER_256PX * self.width() as usize / 256, self.caption_lines as usize)
+    }
+}
+
+/// Render the env's current state as a panel: caption (wrapped) on top, cameras below.
+pub fn render_panel(
+    env: &mut LiberoEnv,
+    renderer: &mut SceneRenderer,
+    layout: &PanelLayout,
+    caption: &str,
+) -> Result<Frame> {
+    let ids = layout.cameras.iter().map(|c| renderer.camera_id(c)).collect::<Result<Vec<_>, _>>()?;
+    for (i, id) in ids.into_iter().enumerate() {
+        env.draw_camera(renderer, id, Rect::new(i as u32 * layout.size, 0, layout.size, layout.size))?;
+    }
+    let caption_rect = Rect::new(0, layout.size, layout.width(), layout.caption_height());
+    renderer.draw_text(caption_rect, &layout.wrap(caption), CAPTION_BACKGROUND)?;
+    Ok(renderer.read(Rect::new(0, 0, layout.width(), layout.height()))?.upright())
+}
+
+/// A full-panel text card (e.g. the outcome at the end of a video), upright.
+pub fn render_card(
+    renderer: &mut SceneRenderer,
+    width: u32,
+    height: u32,
+    text: &str,
+    background: [f32; 3],
+) -> Result<Frame> {
+    let rect = Rect::new(0, 0, width, height);
+    renderer.draw_text(rect, text, background)?;
+    Ok(renderer.read(rect)?.upright())
+}
+
+/// Greedy word wrap to `width` characters, at most `max_lines` lines.
+pub fn wrap(text: &str, width: usize, max_lines: usize) -> String {
+    let mut lines: Vec<String> = Vec::new();
+    for paragraph in text.split('\n') {
+        let mut line = String::new();
+        for word in paragraph.split_whitespace() {
+            if !line.is_empty() && line.chars().count() + 1 + word.chars().count() > width {
+                lines.push(std::mem::take(&mut line));
+            }
+            if !line.is_empty() {
+                line.push(' ');
+            }
+            line.push_str(word);
+        }
+        lines.push(line);
+    }
+    if lines.len() > max_lines {
+        lines.truncate(max_lines);
+        if let Some(last) = lines.last_mut() {
+            let keep: String = last.chars().take(width.saturating_sub(3)).collect();
+            *last = format!("{keep}...");
+        }
+    }
+    lines.join("\n")
+}
+
+/// Write an upright frame as an RGB PNG.
+pub fn write_png(path: &Path, frame: &Frame) -> Result<()> {
+    assert_eq!(frame.orientation, Orientation::Upright, "PNGs are written upright");
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), frame.width, frame.height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(&frame.rgb)?;
+    writer.finish()?;
+    Ok(())
+}
+
+/// An H.264 MP4 being written by an `ffmpeg` child process from raw RGB frames.
+pub struct Mp4Writer {
+    child: Child,
+    stdin: Option<ChildStdin>,
+    path: PathBuf,
+    size: (u32, u32),
+    frames: u64,
+}
+
+impl Mp4Writer {
+    /// Start `ffmpeg` writing `path` (`width`, `height` even) at `fps` frames per second.
+    pub fn create(path: &Path, width: u32, height: u32, fps: u32) -> Result<Self> {
+        if !width.is_multiple_of(2) || !height.is_multiple_of(2) {
+            bail!("video size {width}x{height} must be even for yuv420p");
+        }
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        let mut child = Command::new("ffmpeg")
+            .args(["-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24"])
+            .args(["-s", &format!("{width}x{height}"), "-r", &fps.to_string(), "-i", "-"])
+            .args(["-c:v", "libx264", "-preset", "medium", "-crf", "20", "-pix_fmt", "yuv420p"])
+            .args(["-movflags", "+faststart"])
+            .arg(path)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "cannot start ffmpeg ({e}); install it: `apt-get install ffmpeg` (./setup.sh does it as root)"
+                )
+            })?;
+        let stdin = child.stdin.take();
+        Ok(Mp4Writer { child, stdin, path: path.to_path_buf(), size: (width, height), frames: 0 })
+    }
+
+    pub fn push(&mut self, frame: &Frame) -> Result<()> {
+        assert_eq!(frame.orientation, Orientation::Upright, "videos are written upright");
+        if (frame.width, frame.height) != self.size {
+            bail!("frame is {}x{}, the video {}x{}", frame.width, frame.height, self.size.0, self.size.1);
+        }
+        let stdin = self.stdin.as_mut().expect("open until finish");
+        stdin.write_all(&frame.rgb).with_context(|| format!("ffmpeg stopped while writing {}", self.path.display()))?;
+        self.frames += 1;
+        Ok(())
+    }
+
+    /// Close the pipe and wait for ffmpeg; returns the number of frames written.
+    pub fn finish(mut self) -> Result<u64> {
+        drop(self.stdin.take());
+        let out = self.child.wait_with_output().context("waiting for ffmpeg")?;
+        if !out.status.success() {
+            bail!("ffmpeg failed writing {}: {}", self.path.display(), String::from_utf8_lossy(&out.stderr).trim());
+        }
+        Ok(self.frames)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wrap_breaks_at_words_and_cuts_overflow() {
+        assert_eq!(wrap("put the bowl on the plate", 12, 3), "put the bowl\non the plate");
+        assert_eq!(wrap("a b c d e f g h", 5, 2), "a b c\nd ...");
+        assert_eq!(wrap("line one\nline two", 40, 3), "line one\nline two");
+    }
+}

@@ -75,6 +75,9 @@ fn render_like(frames: &[ReferenceFrame], look: Look) -> Vec<(String, f64, f64, 
     for ((suite, task_id), frames) in by_task {
         let bundle = set.load(suite.parse().unwrap(), task_id).unwrap();
         let mut env = LiberoEnv::new(&bundle).unwrap();
+        // A renderer of the other look first: a look must not leak into the next renderer.
+        let other = if look == Look::Mujoco323 { Look::Mujoco337 } else { Look::Mujoco323 };
+        drop(env.renderer(gl.clone(), RenderOptions { look: other, ..Default::default() }).unwrap());
         let mut renderer = env.renderer(gl.clone(), RenderOptions { look, ..Default::default() }).unwrap();
         for f in frames {
             let theirs = read_png(&f.path);

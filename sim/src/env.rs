@@ -106,6 +106,8 @@ pub struct LiberoEnv {
     geom_is_gripper: Vec<bool>,
     /// Stove burners LIBERO shows or hides after every step (rendering only).
     indicators: Vec<Indicator>,
+    /// The compiled texture colour spaces, restored before a [`Look`](crate::render::Look) is applied.
+    tex_colorspace: Vec<i32>,
 }
 
 /// A site LIBERO's `set_visualization()` toggles after every step: a stove's burner shows while
@@ -174,6 +176,8 @@ impl LiberoEnv {
             .map(|g| model.id_to_name(MjtObj::mjOBJ_BODY, geom_bodyid[g]).is_some_and(|b| b.starts_with("gripper0_")))
             .collect();
         let indicators = burner_indicators(task, &model)?;
+        let tex_colorspace =
+            (0..model.ffi().ntex as usize).map(|i| unsafe { *model.ffi().tex_colorspace.add(i) }).collect();
         let reset_snapshot = ArmState::from_snapshot(c);
         Ok(LiberoEnv {
             data,
@@ -203,6 +207,7 @@ impl LiberoEnv {
             geom_object,
             geom_is_gripper,
             indicators,
+            tex_colorspace,
             bundle: bundle.clone(),
             model,
         })
@@ -462,6 +467,10 @@ impl LiberoEnv {
 
     /// A render context for this env's model (see [`SceneRenderer::new`]; applies the look).
     pub fn renderer(&mut self, gl: std::rc::Rc<GlContext>, options: RenderOptions) -> Result<SceneRenderer, SimError> {
+        let m = unsafe { self.model.ffi_mut() };
+        for (i, &cs) in self.tex_colorspace.iter().enumerate() {
+            unsafe { *m.tex_colorspace.add(i) = cs };
+        }
         SceneRenderer::new(gl, &mut self.model, options)
     }
 

@@ -57,6 +57,8 @@ impl Look {
     }
 
     /// Set the model's texture colour spaces; must happen before a render context uploads them.
+    /// [`Look::Mujoco337`] leaves the model as compiled ([`LiberoEnv::renderer`](crate::env::LiberoEnv::renderer)
+    /// restores the compiled colour spaces first).
     pub fn apply(self, model: &mut MjModel) {
         if self == Look::Mujoco337 {
             return;

@@ -83,7 +83,7 @@ fn a_replay_video_is_h264_yuv420p_with_one_frame_per_two_steps_and_an_outcome_ca
         &format!("{d}/videos"),
         "--preview",
     ]));
-    assert!(text.contains("replay matched 30 stored goal values"), "{text}");
+    assert!(text.contains("of all 30 steps"), "{text}");
     let mp4 = dir.join("videos/libero_spatial_task0_init0.mp4");
     let probe = Command::new("ffprobe")
         .args(["-v", "error", "-select_streams", "v:0", "-count_frames", "-show_entries"])

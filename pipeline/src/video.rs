@@ -2,15 +2,15 @@
 //!
 //! No policy is needed: the env is reset to the episode's init state and seed and driven with
 //! the actions of the `steps` table (wait steps included). The replay also proves determinism:
-//! the goal value after every replayed step must equal the stored one, else the command fails
-//! and names the first step that differs. The video shows agentview | eye-in-hand under a caption
+//! the goal value and the end-effector position after every replayed step must equal the stored
+//! ones (to 1e-9 m), else the command fails and names the first step that differs. The video shows agentview | eye-in-hand under a caption
 //! (instruction, step, goal so far) and ends on a card with the outcome.
 
 use crate::media::{Mp4Writer, PanelLayout, render_card, render_panel};
 use crate::session::{self, SuccessDefinition};
 use anyhow::{Context, Result, bail};
 use arrow::array::{Array, AsArray};
-use arrow::datatypes::{Float32Type, Int32Type, Int64Type};
+use arrow::datatypes::{Float32Type, Float64Type, Int32Type, Int64Type};
 use libero_sim::bundle::BundleSet;
 use libero_sim::env::LiberoEnv;
 use libero_sim::gl::GlContext;
@@ -59,6 +59,8 @@ struct StoredEpisode {
     error: Option<String>,
     actions: Vec<[f32; 7]>,
     goals: Vec<bool>,
+    /// Stored end-effector position after each step: the replay must reproduce it exactly.
+    eef_pos: Vec<[f64; 3]>,
 }
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
@@ -68,7 +70,12 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     for ep in episodes {
         let path = args.out.join(format!("{}_task{}_init{}.mp4", ep.suite, ep.task_id, ep.init_state_id));
         let frames = replay_to_video(&set, &gl, &ep, &args, &path)?;
-        println!("{}  ({} frames, replay matched {} stored goal values)", path.display(), frames, ep.goals.len());
+        println!(
+            "{}  ({} frames, replay matched the stored goal and end-effector position of all {} steps)",
+            path.display(),
+            frames,
+            ep.goals.len()
+        );
     }
     Ok(())
 }
@@ -104,6 +111,16 @@ fn replay_to_video(set: &BundleSet, gl: &Rc<GlContext>, ep: &StoredEpisode, args
                 ep.key,
                 out.goal.satisfied,
                 stored_goal
+            );
+        }
+        let replayed = env.observation().eef_pos;
+        let stored = ep.eef_pos[i];
+        let gap = replayed.iter().zip(&stored).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        if gap > 1e-9 {
+            bail!(
+                "replay of {} is not deterministic: at step {i} the end effector is {gap:.2e} m from the stored \
+                 position; was the run made with other bundles or another MuJoCo? (see its manifest)",
+                ep.key
             );
         }
         goal_seen |= out.goal.satisfied;
@@ -159,11 +176,11 @@ async fn load_episodes(run: &str, keys: &[String]) -> Result<Vec<StoredEpisode>>
         let success = b.column(5).as_boolean();
         let error = b.column(7).as_string::<i32>();
         let steps = ctx
-            .sql(&format!("SELECT action, goal FROM steps WHERE episode_key = {quoted} ORDER BY step"))
+            .sql(&format!("SELECT action, goal, eef_pos FROM steps WHERE episode_key = {quoted} ORDER BY step"))
             .await?
             .collect()
             .await?;
-        let (mut actions, mut goals) = (Vec::new(), Vec::new());
+        let (mut actions, mut goals, mut eef_pos) = (Vec::new(), Vec::new(), Vec::new());
         for s in &steps {
             let list = s.column(0).as_fixed_size_list();
             for r in 0..s.num_rows() {
@@ -176,6 +193,10 @@ async fn load_episodes(run: &str, keys: &[String]) -> Result<Vec<StoredEpisode>>
                     .context("actions have 7 components")?;
                 actions.push(a);
                 goals.push(s.column(1).as_boolean().value(r));
+                let p = s.column(2).as_fixed_size_list().value(r);
+                eef_pos.push(
+                    p.as_primitive::<Float64Type>().values().as_ref().try_into().context("eef_pos has 3 components")?,
+                );
             }
         }
         out.push(StoredEpisode {
@@ -190,6 +211,7 @@ async fn load_episodes(run: &str, keys: &[String]) -> Result<Vec<StoredEpisode>>
             error: (!error.is_null(0)).then(|| error.value(0).to_string()),
             actions,
             goals,
+            eef_pos,
         });
     }
     Ok(out)

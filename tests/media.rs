@@ -1,9 +1,8 @@
 //! Media through the binary: smoke pictures (upright, the published look) and replay videos
 //! (H.264 in an MP4 a browser plays, checked with ffprobe), and the errors a user meets.
 
-use libero_e2e::{pipeline_bin, repo_root};
+use libero_e2e::{pipeline_bin, read_png, repo_root};
 use libero_sim::render::{Frame, Orientation};
-use std::path::Path;
 use std::process::{Command, Output};
 
 fn pipeline(args: &[&str]) -> Output {
@@ -14,15 +13,6 @@ fn ok(out: &Output) -> String {
     let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
     assert!(out.status.success(), "pipeline failed:\n{text}");
     text
-}
-
-fn read_png(path: &Path) -> Frame {
-    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
-    let mut reader = decoder.read_info().unwrap();
-    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
-    let info = reader.next_frame(&mut buf).unwrap();
-    buf.truncate(info.buffer_size());
-    Frame { width: info.width, height: info.height, rgb: buf, orientation: Orientation::Upright }
 }
 
 /// The `size`×`size` tile at the panel's bottom-left (the agentview camera), upright.
@@ -42,15 +32,16 @@ fn smoke_pictures_are_upright_captioned_and_in_the_published_look() {
         pipeline(&["smoke", "--out", dir.to_str().unwrap(), "--suites", "libero_spatial,libero_object", "--seed", "0"]);
     ok(&out);
     for suite in ["libero_spatial", "libero_object"] {
-        let panel = read_png(&dir.join(format!("{suite}.png")));
+        let panel = read_png(&dir.join(format!("{suite}.png")), Orientation::Upright);
         assert_eq!(panel.width, 512, "two 256-px cameras side by side");
         assert!(panel.height > 256, "a caption strip above the cameras");
         // The agentview tile is the reference env's frame on MuJoCo 3.2.3 (same state: task 0,
         // init 0, seed 0), turned upright for a person.
         let ours = bottom_left_tile(&panel, 256);
-        let reference =
-            read_png(&repo_root().join(format!("data/frames/mujoco-3.2.3/{suite}__00__init0__s000__agentview.png")));
-        let reference = Frame { orientation: Orientation::Reference, ..reference };
+        let reference = read_png(
+            &repo_root().join(format!("data/frames/mujoco-3.2.3/{suite}__00__init0__s000__agentview.png")),
+            Orientation::Reference,
+        );
         let upright = ours.psnr(&reference.upright());
         let as_stored = ours.psnr(&Frame { orientation: Orientation::Upright, ..reference.clone() });
         println!("{suite}: PSNR vs the reference turned upright {upright:.1} dB, vs it unturned {as_stored:.1} dB");

@@ -5,13 +5,13 @@
 //! `data/frames/mujoco-3.2.3/` holds frames the reference env rendered on the published stack's
 //! MuJoCo (every task, init state 0). Both are made at set-up by `scripts/reference/frames.py`.
 
-use libero_e2e::{bundles, golden_dir, read_npy, repo_root};
+use libero_e2e::{bundles, golden_dir, read_npy, read_png, repo_root};
 use libero_sim::SimError;
 use libero_sim::env::LiberoEnv;
 use libero_sim::gl::GlContext;
-use libero_sim::render::{Frame, Look, Orientation, RenderOptions};
+use libero_sim::render::{Look, Orientation, RenderOptions};
 use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::rc::Rc;
 
 /// One reference frame: `<suite>__<NN>__init<k>__s<SSS>__<camera>.png`.
@@ -52,16 +52,6 @@ fn reference_frames(stack: &str) -> Vec<ReferenceFrame> {
     out
 }
 
-fn read_png(path: &Path) -> Frame {
-    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
-    let mut reader = decoder.read_info().unwrap();
-    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
-    let info = reader.next_frame(&mut buf).unwrap();
-    assert_eq!(info.color_type, png::ColorType::Rgb, "{}", path.display());
-    buf.truncate(info.buffer_size());
-    Frame { width: info.width, height: info.height, rgb: buf, orientation: Orientation::Reference }
-}
-
 /// Render every reference frame's state with `look`; returns (frame name, PSNR, our mean brightness,
 /// theirs) per frame. Tasks are compiled once each.
 fn render_like(frames: &[ReferenceFrame], look: Look) -> Vec<(String, f64, f64, f64)> {
@@ -80,7 +70,7 @@ fn render_like(frames: &[ReferenceFrame], look: Look) -> Vec<(String, f64, f64, 
         drop(env.renderer(gl.clone(), RenderOptions { look: other, ..Default::default() }).unwrap());
         let mut renderer = env.renderer(gl.clone(), RenderOptions { look, ..Default::default() }).unwrap();
         for f in frames {
-            let theirs = read_png(&f.path);
+            let theirs = read_png(&f.path, Orientation::Reference);
             let poses = bundle.fixture_poses(0, f.init).unwrap().clone();
             let state = if f.step == 0 {
                 bundle.init_state(f.init).unwrap().to_vec()

@@ -35,3 +35,14 @@ pub fn pipeline_bin() -> PathBuf {
     let profile = if cfg!(debug_assertions) { "debug" } else { "release" };
     target.join(profile).join("pipeline")
 }
+
+/// Read an RGB PNG as a frame in the given orientation (PNGs carry none).
+pub fn read_png(path: &Path, orientation: libero_sim::render::Orientation) -> libero_sim::render::Frame {
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgb, "{}", path.display());
+    buf.truncate(info.buffer_size());
+    libero_sim::render::Frame { width: info.width, height: info.height, rgb: buf, orientation }
+}

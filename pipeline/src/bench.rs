@@ -146,12 +146,12 @@ fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
         let mut rate = |quality| -> Result<f64> {
             let options = RenderOptions { quality, ..Default::default() };
             let mut renderer = env.renderer(gl.clone(), options)?;
-            for cam in crate::smoke::CAMERAS {
+            for cam in crate::media::CAMERAS {
                 env.render(&mut renderer, cam, args.size, args.size)?; // warm-up
             }
             let t0 = Instant::now();
             for _ in 0..args.frames {
-                for cam in crate::smoke::CAMERAS {
+                for cam in crate::media::CAMERAS {
                     env.render(&mut renderer, cam, args.size, args.size)?;
                 }
             }
@@ -178,21 +178,28 @@ fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
 }
 
 fn python_render_rate(python: &Path, suite: Suite, frames: u32, size: u32) -> Result<f64> {
-    let script = Path::new("scripts/reference/bench_render.py");
-    let out = Command::new(python)
-        .arg(script)
-        .args([suite.name(), "0", &frames.to_string(), &size.to_string()])
-        .output()
-        .with_context(|| {
-            format!("running {} {} (the reference venv; see ./setup.sh)", python.display(), script.display())
-        })?;
+    let args = [suite.name(), "0", &frames.to_string(), &size.to_string()];
+    reference_figure(python, "bench_render.py", &args, "pairs_per_s")
+}
+
+/// Run `scripts/reference/<script>` in the reference venv and read `key` from the JSON line it
+/// prints last.
+fn reference_figure(python: &Path, script: &str, args: &[&str], key: &str) -> Result<f64> {
+    let script = Path::new("scripts/reference").join(script);
+    let out = Command::new(python).arg(&script).args(args).output().with_context(|| {
+        format!("running {} {} (the reference venv; see ./setup.sh)", python.display(), script.display())
+    })?;
     if !out.status.success() {
-        bail!("reference render benchmark failed: {}", String::from_utf8_lossy(&out.stderr));
+        bail!("{} failed: {}", script.display(), String::from_utf8_lossy(&out.stderr));
     }
     let text = String::from_utf8_lossy(&out.stdout);
-    let line = text.lines().rev().find(|l| l.starts_with('{')).context("no JSON line from bench_render.py")?;
+    let line = text
+        .lines()
+        .rev()
+        .find(|l| l.starts_with('{'))
+        .with_context(|| format!("no JSON line from {}", script.display()))?;
     let v: serde_json::Value = serde_json::from_str(line)?;
-    v["pairs_per_s"].as_f64().context("pairs_per_s missing")
+    v[key].as_f64().with_context(|| format!("{key} missing in {}'s output", script.display()))
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -224,16 +231,5 @@ fn raw_mujoco_rate(bundle: &libero_sim::bundle::TaskBundle, steps: u32, controls
 }
 
 fn python_rate(python: &Path, suite: Suite, steps: u32) -> Result<f64> {
-    let script = Path::new("scripts/reference/bench_reference.py");
-    let out =
-        Command::new(python).arg(script).args([suite.name(), "0", &steps.to_string()]).output().with_context(|| {
-            format!("running {} {} (the reference venv; see ./setup.sh)", python.display(), script.display())
-        })?;
-    if !out.status.success() {
-        bail!("reference benchmark failed: {}", String::from_utf8_lossy(&out.stderr));
-    }
-    let text = String::from_utf8_lossy(&out.stdout);
-    let line = text.lines().rev().find(|l| l.starts_with('{')).context("no JSON line from bench_reference.py")?;
-    let v: serde_json::Value = serde_json::from_str(line)?;
-    v["steps_per_s"].as_f64().context("steps_per_s missing")
+    reference_figure(python, "bench_reference.py", &[suite.name(), "0", &steps.to_string()], "steps_per_s")
 }

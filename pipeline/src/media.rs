@@ -7,7 +7,7 @@
 
 use anyhow::{Context, Result, bail};
 use libero_sim::env::LiberoEnv;
-use libero_sim::render::{Frame, Orientation, Rect, SceneRenderer};
+use libero_sim::render::{DEFAULT_SIZE, Frame, Look, Orientation, Quality, Rect, RenderOptions, SceneRenderer};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, Stdio};
@@ -17,6 +17,40 @@ const CHARS_PER_256PX: usize = 25;
 /// Pixel height of one caption line (MuJoCo's normal font at scale 150, with spacing).
 const LINE_HEIGHT: u32 = 33;
 const CAPTION_BACKGROUND: [f32; 3] = [0.08, 0.08, 0.1];
+
+/// The cameras a person looks at: what the policy sees from outside and from the wrist.
+pub const CAMERAS: [&str; 2] = ["agentview", "robot0_eye_in_hand"];
+
+/// How panels for a person are rendered (shared by `smoke` and `video`).
+#[derive(clap::Args)]
+pub struct PanelArgs {
+    /// Camera size in pixels.
+    #[arg(long, default_value_t = DEFAULT_SIZE)]
+    size: u32,
+    /// Texture look: mujoco-3.2.3 (the published stack, default) or mujoco-3.3.7.
+    #[arg(long, default_value = "mujoco-3.2.3")]
+    pub look: Look,
+    /// Fast preview quality (no shadows, reflections or multisampling); not what policies see.
+    #[arg(long)]
+    preview: bool,
+}
+
+impl PanelArgs {
+    /// [`CAMERAS`] side by side under a 4-line caption.
+    pub fn layout(&self) -> PanelLayout {
+        PanelLayout { cameras: CAMERAS.map(String::from).to_vec(), size: self.size, caption_lines: 4 }
+    }
+
+    /// Render options whose offscreen buffer holds `layout`.
+    pub fn options(&self, layout: &PanelLayout) -> RenderOptions {
+        RenderOptions {
+            look: self.look,
+            quality: if self.preview { Quality::Preview } else { Quality::Reference },
+            max_width: layout.width(),
+            max_height: layout.height(),
+        }
+    }
+}
 
 /// Cameras side by side, each `size`×`size`, under a caption of `caption_lines` lines.
 #[derive(Debug, Clone)]

@@ -4,13 +4,12 @@
 //! quality, the published look), upright for a person: agentview | eye-in-hand, with the suite,
 //! task and instruction as a caption. Written to `<out>/<suite>.png`.
 
-use crate::media::{PanelLayout, render_panel, write_png};
+use crate::media::{PanelArgs, render_panel, write_png};
 use anyhow::Result;
 use libero_schema::Suite;
 use libero_sim::bundle::BundleSet;
 use libero_sim::env::LiberoEnv;
 use libero_sim::gl::GlContext;
-use libero_sim::render::{DEFAULT_SIZE, Look, Quality, RenderOptions};
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
@@ -30,29 +29,15 @@ pub struct Args {
     /// Env seed (fixture poses); the canonical protocol's by default.
     #[arg(long, default_value_t = libero_schema::protocol::SEED)]
     seed: u64,
-    /// Camera size in pixels.
-    #[arg(long, default_value_t = DEFAULT_SIZE)]
-    size: u32,
-    /// Texture look: mujoco-3.2.3 (the published stack, default) or mujoco-3.3.7.
-    #[arg(long, default_value = "mujoco-3.2.3")]
-    look: Look,
-    /// Fast preview quality (no shadows, reflections or multisampling); not what policies see.
-    #[arg(long)]
-    preview: bool,
+    #[command(flatten)]
+    panel: PanelArgs,
 }
-
-pub const CAMERAS: [&str; 2] = ["agentview", "robot0_eye_in_hand"];
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
     let set = BundleSet::open(bundles)?;
     let gl = Rc::new(GlContext::new()?);
-    let layout = PanelLayout { cameras: CAMERAS.map(String::from).to_vec(), size: args.size, caption_lines: 4 };
-    let options = RenderOptions {
-        look: args.look,
-        quality: if args.preview { Quality::Preview } else { Quality::Reference },
-        max_width: layout.width(),
-        max_height: layout.height(),
-    };
+    let layout = args.panel.layout();
+    let options = args.panel.options(&layout);
     for suite in &args.suites {
         let bundle = set.load(*suite, args.task)?;
         let mut env = LiberoEnv::new(&bundle)?;
@@ -64,7 +49,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             args.task,
             args.init_state,
             args.seed,
-            args.look.name(),
+            args.panel.look.name(),
             bundle.task.instruction
         );
         let panel = render_panel(&mut env, &mut renderer, &layout, &caption)?;

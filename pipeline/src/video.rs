@@ -6,7 +6,7 @@
 //! ones (to 1e-9 m), else the command fails and names the first step that differs. The video shows agentview | eye-in-hand under a caption
 //! (instruction, step, goal so far) and ends on a card with the outcome.
 
-use crate::media::{Mp4Writer, PanelLayout, render_card, render_panel};
+use crate::media::{Mp4Writer, PanelArgs, render_card, render_panel};
 use crate::session::{self, SuccessDefinition};
 use anyhow::{Context, Result, bail};
 use arrow::array::{Array, AsArray};
@@ -14,7 +14,6 @@ use arrow::datatypes::{Float32Type, Float64Type, Int32Type, Int64Type};
 use libero_sim::bundle::BundleSet;
 use libero_sim::env::LiberoEnv;
 use libero_sim::gl::GlContext;
-use libero_sim::render::{DEFAULT_SIZE, Look, Quality, RenderOptions};
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
@@ -35,15 +34,8 @@ pub struct Args {
     /// Render every N-th env step (the env runs at 20 Hz: 2 at 10 fps is real time).
     #[arg(long, default_value_t = 2)]
     every: u32,
-    /// Camera size in pixels.
-    #[arg(long, default_value_t = DEFAULT_SIZE)]
-    size: u32,
-    /// Texture look: mujoco-3.2.3 (the published stack, default) or mujoco-3.3.7.
-    #[arg(long, default_value = "mujoco-3.2.3")]
-    look: Look,
-    /// Fast preview quality (no shadows, reflections or multisampling).
-    #[arg(long)]
-    preview: bool,
+    #[command(flatten)]
+    panel: PanelArgs,
 }
 
 /// One stored episode: what the replay needs and what the final card says.
@@ -87,14 +79,8 @@ fn replay_to_video(set: &BundleSet, gl: &Rc<GlContext>, ep: &StoredEpisode, args
     let bundle = set.load(ep.suite.parse().map_err(anyhow::Error::msg)?, ep.task_id)?;
     let mut env = LiberoEnv::new(&bundle)?;
     env.reset(ep.init_state_id, ep.seed)?;
-    let layout =
-        PanelLayout { cameras: crate::smoke::CAMERAS.map(String::from).to_vec(), size: args.size, caption_lines: 4 };
-    let options = RenderOptions {
-        look: args.look,
-        quality: if args.preview { Quality::Preview } else { Quality::Reference },
-        max_width: layout.width(),
-        max_height: layout.height(),
-    };
+    let layout = args.panel.layout();
+    let options = args.panel.options(&layout);
     let mut renderer = env.renderer(gl.clone(), options)?;
     let mut video = Mp4Writer::create(path, layout.width(), layout.height(), args.fps)?;
     let caption = |step: usize, goal_seen: bool| {

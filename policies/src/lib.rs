@@ -1,7 +1,7 @@
 //! # libero-policies
 //!
 //! The [`Policy`] seam between the rollout and the models it evaluates, and its implementations
-//! (baselines now; TorchScript, OpenVLA in-process on tch and a remote client with the policy
+//! (baselines and a privileged scripted [`Expert`] now; TorchScript, OpenVLA in-process on tch and a remote client with the policy
 //! issue). It knows nothing of MuJoCo: policies see an [`Observation`] (proprio state and the
 //! instruction; images with the media issue) and return 7-dim actions.
 //!
@@ -20,9 +20,13 @@
 //! ```
 
 mod baselines;
+mod expert;
+pub mod scene;
 mod spec;
 
 pub use baselines::{LiftPolicy, NanAtPolicy, RandomPolicy};
+pub use expert::Expert;
+pub use scene::SceneView;
 pub use spec::PolicySpec;
 
 /// What a policy sees at one step (the env's observation, without MuJoCo types).
@@ -36,6 +40,8 @@ pub struct Observation {
     pub gripper_qpos: [f64; 2],
     pub joint_pos: [f64; 7],
     pub joint_vel: [f64; 7],
+    /// Privileged simulator state, only for policies that ask for it ([`Policy::wants_scene`]).
+    pub scene: Option<SceneView>,
 }
 
 /// A 7-dim env action: delta eef position (3), delta axis-angle (3), gripper (-1 open … +1 close).
@@ -55,4 +61,9 @@ pub trait Policy: Send {
     fn reset(&mut self, instruction: &str, episode_seed: u64);
     /// The action for this step.
     fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError>;
+    /// Whether the rollout must fill [`Observation::scene`] (privileged state: scripted experts
+    /// only; a learned policy must never see it).
+    fn wants_scene(&self) -> bool {
+        false
+    }
 }

@@ -1,6 +1,6 @@
 //! Naming a policy on the command line and recording its identity in the run manifest.
 
-use crate::{LiftPolicy, NanAtPolicy, Policy, PolicyError, RandomPolicy};
+use crate::{Expert, LiftPolicy, NanAtPolicy, Policy, PolicyError, RandomPolicy};
 use std::fmt;
 use std::str::FromStr;
 
@@ -11,6 +11,8 @@ pub enum PolicySpec {
     Random,
     /// Move up, gripper untouched (baseline; must score ≈ 0).
     Lift,
+    /// The privileged scripted expert (positive control; reads the simulator state).
+    Expert,
     /// Diagnostic: NaN action at policy step N (exercises error rows).
     NanAt(u32),
 }
@@ -21,6 +23,7 @@ impl PolicySpec {
         Ok(match self {
             PolicySpec::Random => Box::new(RandomPolicy::new()),
             PolicySpec::Lift => Box::new(LiftPolicy),
+            PolicySpec::Expert => Box::new(Expert::new()),
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
         })
     }
@@ -46,6 +49,11 @@ impl PolicySpec {
             PolicySpec::Lift => serde_json::json!({
                 "kind": "baseline", "name": "lift", "action": [0, 0, 0.05, 0, 0, 0, 0], "chunking": 1,
             }),
+            PolicySpec::Expert => serde_json::json!({
+                "kind": "scripted expert", "name": "expert", "privileged": true,
+                "plan": "goal terms -> pick-and-place / open / close / turn-on skills, closed loop on the eef pose",
+                "chunking": 1,
+            }),
             PolicySpec::NanAt(n) => {
                 serde_json::json!({"kind": "diagnostic", "name": "nan-at", "step": n})
             }
@@ -58,6 +66,7 @@ impl fmt::Display for PolicySpec {
         match self {
             PolicySpec::Random => f.write_str("random"),
             PolicySpec::Lift => f.write_str("lift"),
+            PolicySpec::Expert => f.write_str("expert"),
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
         }
     }
@@ -69,9 +78,12 @@ impl FromStr for PolicySpec {
         match s {
             "random" => Ok(PolicySpec::Random),
             "lift" => Ok(PolicySpec::Lift),
+            "expert" => Ok(PolicySpec::Expert),
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
-                _ => Err(format!("unknown policy {s:?}; known: random, lift, nan-at:<policy step> (diagnostic)")),
+                _ => {
+                    Err(format!("unknown policy {s:?}; known: random, lift, expert, nan-at:<policy step> (diagnostic)"))
+                }
             },
         }
     }

@@ -7,6 +7,7 @@
 //! here the default is to run to the cap so that last-step scoring stays possible, and
 //! `success` (any policy step within the cap) equals the published first-success latch either way.
 
+use crate::scene_view::SceneReader;
 use crate::steps_batch::{EpisodeKey, StepRecord, StepsBatchBuilder};
 use arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, RecordBatch, StringArray};
 use arrow::buffer::OffsetBuffer;
@@ -110,13 +111,25 @@ pub fn run_episode(
         sim_s: 0.0,
         policy_s: 0.0,
     };
-    if let Err(e) = env.reset(key.init_state_id as usize, key.seed as u64) {
-        summary.error = Some(EpisodeError::from_sim(&e));
-        return (steps, summary);
-    }
+    let mut goal = match env.reset(key.init_state_id as usize, key.seed as u64) {
+        Ok(g) => g,
+        Err(e) => {
+            summary.error = Some(EpisodeError::from_sim(&e));
+            return (steps, summary);
+        }
+    };
     policy.reset(&instruction, policy_seed);
+    // Privileged state only for the policies that ask for it (scripted experts).
+    let scene = match policy.wants_scene().then(|| SceneReader::new(env)).transpose() {
+        Ok(s) => s,
+        Err(e) => {
+            summary.error = Some(EpisodeError::from_sim(&e));
+            return (steps, summary);
+        }
+    };
     // The state after step t is what the policy sees before step t+1: read it once per step.
     let mut obs = env.observation();
+    let mut contacts = env.gripper_contacts();
     let total = protocol.num_steps_wait + protocol.max_steps;
     for t in 0..total {
         let policy_step = t.checked_sub(protocol.num_steps_wait);
@@ -131,6 +144,7 @@ pub fn run_episode(
                     gripper_qpos: obs.gripper_qpos,
                     joint_pos: obs.joint_pos,
                     joint_vel: obs.joint_vel,
+                    scene: scene.as_ref().map(|r| r.read(env, &goal, &contacts)),
                 };
                 let t0 = Instant::now();
                 let a = policy.act(&input);
@@ -158,7 +172,7 @@ pub fn run_episode(
         };
         obs = env.observation();
         let poses: Vec<([f64; 3], [f64; 4])> = obs.object_poses.iter().map(|p| (p.pos, p.quat)).collect();
-        let contacts = env.gripper_contacts();
+        contacts = env.gripper_contacts();
         steps.push(&StepRecord {
             step: t as i32,
             policy_step: policy_step.map(|p| p as i32),
@@ -174,10 +188,11 @@ pub fn run_episode(
             sim_ms,
             policy_ms,
         });
+        goal = out.goal;
         if let Some(p) = policy_step {
             summary.n_policy_steps = p + 1;
-            summary.final_goal = out.goal.satisfied;
-            if out.goal.satisfied && summary.first_success_step.is_none() {
+            summary.final_goal = goal.satisfied;
+            if goal.satisfied && summary.first_success_step.is_none() {
                 summary.first_success_step = Some(p);
                 if protocol.stop_on_success {
                     break;

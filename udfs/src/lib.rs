@@ -14,6 +14,7 @@
 pub mod episode;
 pub mod rollout;
 pub mod run_store;
+pub mod scene_view;
 pub mod steps_batch;
 pub mod wilson;
 

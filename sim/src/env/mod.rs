@@ -12,6 +12,10 @@
 //! stages and the acceleration/integration stages, skipping the duplicate; the parity test
 //! checks both modes against the reference.
 
+mod probe;
+
+pub use probe::{Box3, JointFrame, ObjectGeometry, SceneProbe, SiteFrame};
+
 use crate::SimError;
 use crate::bundle::{Pose, TaskBundle};
 use crate::gl::GlContext;

@@ -5,7 +5,10 @@
 //! joint's world axis (and anchor, for hinges) turns that into the way the contact point moves.
 
 use super::grasp::FINGER_CLEARANCE;
-use super::motion::{down_orientation, hand_rotation, position_action, rotation_action, yaw_closing_along};
+use super::motion::{
+    down_orientation, hand_rotation, hand_yaw, nearest_equivalent_yaw, position_action, rotation_action,
+    yaw_closing_along,
+};
 use super::{SkillState, Step, action};
 use crate::Observation;
 use crate::scene::{JointRule, SceneView, TaskFacts};
@@ -98,7 +101,7 @@ fn push(st: &mut SkillState, view: &SceneView, obs: &Observation, joint: usize, 
     let p = push_geometry(view, joint, raise);
     let n = st.phase_steps;
     // Fingers closed, pointing down, the closed fingers' flat side facing the push.
-    st.yaw = yaw_closing_along(&Vector3::new(-p.dir.y, p.dir.x, 0.0));
+    st.yaw = nearest_equivalent_yaw(yaw_closing_along(&Vector3::new(-p.dir.y, p.dir.x, 0.0)), hand_yaw(&hand));
     let height = p.point.z.max(view.state.joints[joint].moving_box.min[2] + FINGER_CLEARANCE);
     let start = Vector3::new(p.point.x, p.point.y, height) - p.dir * BEHIND;
     let go = |st: &SkillState, t: Vector3<f64>, max: f64| {
@@ -155,7 +158,7 @@ fn pull(st: &mut SkillState, view: &SceneView, obs: &Observation, joint: usize, 
     // The handle bar: 1.5 cm deep at the front of the drawer's box, at the drawer's mid height.
     let handle = c + dir * (depth - 0.0075);
     let n = st.phase_steps;
-    st.yaw = yaw_closing_along(&dir);
+    st.yaw = nearest_equivalent_yaw(yaw_closing_along(&dir), hand_yaw(&hand));
     let q0 = obs.gripper_qpos[0];
     let part_open = if q0 > HANDLE_HALF_WIDTH + 0.002 {
         1.0

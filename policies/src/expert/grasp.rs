@@ -1,7 +1,7 @@
 //! Where to grasp an object and where to put it, from its box and the goal term.
 
 use super::motion::yaw_closing_along;
-use crate::scene::{Aabb, ObjectState, SceneView};
+use crate::scene::{Aabb, SceneView};
 use nalgebra::{Matrix3, Vector3};
 
 /// Widest object the Panda's fingers close across (their stroke is 8 cm; keep a margin).
@@ -143,9 +143,4 @@ fn segment_box_distance_xy(b: &Aabb, a: &Vector3<f64>, c: &Vector3<f64>) -> f64 
             box_distance_xy(b, &(a + (c - a) * t))
         })
         .fold(f64::MAX, f64::min)
-}
-
-/// The object's current state (a shorthand).
-pub fn object<'a>(view: &'a SceneView, i: usize) -> &'a ObjectState {
-    &view.state.objects[i]
 }

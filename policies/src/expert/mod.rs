@@ -74,11 +74,15 @@ pub struct Expert {
     /// `LIBERO_EXPERT_TRACE=1` prints every skill and phase change to stderr (a diagnostic for
     /// tuning the skills; the per-step evidence itself is in the steps table).
     trace: bool,
+    /// `LIBERO_EXPERT_TRACE=N` (N > 1) also prints every N-th action of a phase.
+    trace_every: u32,
 }
 
 impl Expert {
     pub fn new() -> Self {
-        Expert { trace: std::env::var_os("LIBERO_EXPERT_TRACE").is_some(), ..Self::default() }
+        let trace = std::env::var("LIBERO_EXPERT_TRACE").ok();
+        let trace_every = trace.as_deref().and_then(|t| t.parse::<u32>().ok()).filter(|&n| n > 1).unwrap_or(0);
+        Expert { trace: trace.is_some(), trace_every, ..Self::default() }
     }
 
     /// The plan for a goal: opening first, then placements, closing last. Each skill keeps the
@@ -132,7 +136,7 @@ impl Expert {
 
 impl Policy for Expert {
     fn reset(&mut self, _instruction: &str, _episode_seed: u64) {
-        *self = Expert { trace: self.trace, ..Expert::new() };
+        *self = Expert { trace: self.trace, trace_every: self.trace_every, ..Expert::new() };
     }
 
     fn wants_scene(&self) -> bool {
@@ -179,7 +183,7 @@ impl Policy for Expert {
             self.state.phase_steps += 1;
             if self.trace && (self.state.phase != before.0 || self.state.attempts != before.1 || obs.policy_step == 0) {
                 eprintln!(
-                    "expert step {:3} skill {} {:?} attempt {} phase {} -> {} eef [{:.3} {:.3} {:.3}] grip {:.4} terms {:?}",
+                    "expert step {:3} skill {} {:?} attempt {} phase {} -> {} eef [{:.3} {:.3} {:.3}] yaw {:.2} (hand {:.2}) grip {:.4} terms {:?}",
                     obs.policy_step,
                     self.current,
                     skill,
@@ -189,12 +193,33 @@ impl Policy for Expert {
                     eef.x,
                     eef.y,
                     eef.z,
+                    self.state.yaw,
+                    motion::hand_yaw(&motion::hand_rotation(&obs.eef_quat)),
                     obs.gripper_qpos[0],
                     view.state.goal_terms,
                 );
             }
             match step {
-                Step::Act(a) => return Ok(a),
+                Step::Act(a) => {
+                    if self.trace_every > 0 && self.state.phase_steps % self.trace_every == 0 {
+                        let q = obs.eef_quat;
+                        eprintln!(
+                            "expert step {:3}   phase {} n {} eef [{:.3} {:.3} {:.3}] quat [{:.3} {:.3} {:.3} {:.3}] action {:.2?}",
+                            obs.policy_step,
+                            self.state.phase,
+                            self.state.phase_steps,
+                            eef.x,
+                            eef.y,
+                            eef.z,
+                            q[0],
+                            q[1],
+                            q[2],
+                            q[3],
+                            a
+                        );
+                    }
+                    return Ok(a);
+                }
                 Step::Done => {
                     let retry = !Self::skill_holds(view, skill, *term) && self.state.attempts + 1 < MAX_ATTEMPTS;
                     if self.trace {

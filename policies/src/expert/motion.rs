@@ -20,7 +20,8 @@ pub fn down_orientation(yaw: f64) -> Rotation3<f64> {
 }
 
 /// Horizontal direction along which the fingers close when the hand points down with this yaw.
-pub fn closing_direction(yaw: f64) -> Vector3<f64> {
+#[cfg(test)]
+fn closing_direction(yaw: f64) -> Vector3<f64> {
     Vector3::new(-yaw.sin(), yaw.cos(), 0.0)
 }
 
@@ -34,6 +35,33 @@ pub fn yaw_closing_along(v: &Vector3<f64>) -> f64 {
         yaw += std::f64::consts::PI;
     }
     yaw
+}
+
+/// Largest yaw (either way) the expert asks for: the Panda's last joint turns ±2.90 rad from its
+/// start at π/4, so beyond ~±2.1 rad of yaw from the start it hits its limit and the hand stalls
+/// tilted. Kept under that with a margin.
+const MAX_YAW: f64 = 1.95;
+
+/// The hand's yaw now: the angle of its closing direction, in the convention of [`down_orientation`].
+pub fn hand_yaw(hand: &Rotation3<f64>) -> f64 {
+    let c = hand * Vector3::x();
+    (-c.x).atan2(c.y)
+}
+
+/// The yaw to turn to for a grasp planned at `yaw` (in (-π/2, π/2]) when the hand is at `current`.
+/// The fingers are symmetric, so `yaw ± π` grasps the same; when the planned yaw is more than a
+/// quarter turn away, the equivalent one nearest the hand within the wrist's reach is taken: a turn
+/// of a few degrees instead of half a turn that would run the wrist into its limit.
+pub fn nearest_equivalent_yaw(yaw: f64, current: f64) -> f64 {
+    use std::f64::consts::{FRAC_PI_2, PI};
+    if (yaw - current).abs() <= FRAC_PI_2 {
+        return yaw;
+    }
+    [yaw - 2.0 * PI, yaw - PI, yaw, yaw + PI, yaw + 2.0 * PI]
+        .into_iter()
+        .filter(|y| y.abs() <= MAX_YAW)
+        .min_by(|a, b| (a - current).abs().total_cmp(&(b - current).abs()))
+        .unwrap_or(yaw)
 }
 
 /// The hand's orientation from the observation's (w, x, y, z) quaternion.
@@ -77,6 +105,19 @@ mod tests {
         // The hand's x axis is the closing direction.
         let r = down_orientation(0.4);
         assert!((r * Vector3::x() - closing_direction(0.4)).norm() < 1e-12);
+    }
+
+    #[test]
+    fn the_nearest_equivalent_yaw_is_a_short_turn_within_the_wrist() {
+        use std::f64::consts::FRAC_PI_2;
+        // From -1.9 rad, +π/2 is reached as -π/2 (a 0.33 rad turn, not 3.5).
+        assert!((nearest_equivalent_yaw(FRAC_PI_2, -1.9) + FRAC_PI_2).abs() < 1e-12);
+        // Never beyond the wrist's limit, even when that is nearer.
+        assert!((nearest_equivalent_yaw(0.1, 2.5) - 0.1).abs() < 1e-12);
+        // Within a quarter turn the planned yaw stands.
+        assert!((nearest_equivalent_yaw(1.2, -0.2) - 1.2).abs() < 1e-12);
+        // The hand's own yaw is read back.
+        assert!((hand_yaw(&down_orientation(0.7)) - 0.7).abs() < 1e-12);
     }
 
     #[test]

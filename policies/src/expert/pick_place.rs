@@ -2,7 +2,9 @@
 //! clear of whatever lies on the way, carry, lower onto the target, release, retreat.
 
 use super::grasp::{Placement, obstacle_top, plan_grasp, plan_placement};
-use super::motion::{down_orientation, hand_rotation, position_action, rotation_action, rotation_error};
+use super::motion::{
+    down_orientation, hand_rotation, hand_yaw, nearest_equivalent_yaw, position_action, rotation_action, rotation_error,
+};
 use super::{SkillState, Step, action};
 use crate::Observation;
 use crate::scene::SceneView;
@@ -21,6 +23,9 @@ const RETREAT: u8 = 7;
 const ABOVE: f64 = 0.08;
 /// Clearance of the carried object's bottom over obstacles and the target.
 const CLEARANCE: f64 = 0.04;
+/// Speed limit (fraction of the largest action) while holding an object: fast swings make rim
+/// grasps of bowls slip.
+const CARRY_SPEED: f64 = 1.0;
 const OPEN: f64 = -1.0;
 const CLOSED: f64 = 1.0;
 
@@ -45,7 +50,7 @@ pub(super) fn step(
     match st.phase {
         APPROACH => {
             let g = plan_grasp(view, obj);
-            st.yaw = g.yaw;
+            st.yaw = nearest_equivalent_yaw(g.yaw, hand_yaw(&hand));
             let above = g.point + Vector3::new(0.0, 0.0, ABOVE);
             // Rise first when the hand is low and far, so it does not sweep through objects.
             let t = if (eef.xy() - above.xy()).norm() > 0.03 && eef.z < above.z - 0.02 {
@@ -53,7 +58,7 @@ pub(super) fn step(
             } else {
                 above
             };
-            let settled = (eef - above).norm() < 0.012 && rotation_error(&hand, &down_orientation(g.yaw)) < 0.08;
+            let settled = (eef - above).norm() < 0.012 && rotation_error(&hand, &down_orientation(st.yaw)) < 0.08;
             if settled || n > 120 {
                 st.goto(DESCEND);
             }
@@ -87,7 +92,7 @@ pub(super) fn step(
                 st.hold = eef - root;
                 st.goto(CARRY);
             }
-            go(st, t, CLOSED, 1.0)
+            go(st, t, CLOSED, CARRY_SPEED)
         }
         CARRY => {
             if dropped(st, &eef, &root) {
@@ -99,7 +104,7 @@ pub(super) fn step(
             if (eef.xy() - t.xy()).norm() < 0.008 || n > 150 {
                 st.goto(LOWER);
             }
-            go(st, t, CLOSED, 1.0)
+            go(st, t, CLOSED, CARRY_SPEED)
         }
         LOWER => {
             if dropped(st, &eef, &root) {

@@ -4,9 +4,12 @@
 //! own module; this file only parses arguments and dispatches.
 
 mod bench;
+mod compare;
 mod media;
+mod published;
 mod results;
 mod run;
+mod sample_size;
 mod session;
 mod smoke;
 mod specs;
@@ -38,8 +41,12 @@ enum Command {
     Run(run::Args),
     /// Per-suite and per-task success rates with Wilson 95% intervals, re-scorable.
     Results(results::Args),
-    /// Ad-hoc SQL over a run (tables specs, steps, episodes, manifest, scored).
+    /// Ad-hoc SQL over a run (tables specs, steps, episodes, manifest, scored, published).
     Sql(sql::Args),
+    /// Paired comparison of two runs on their common episode keys (McNemar, Newcombe interval).
+    Compare(compare::Args),
+    /// Trials per task needed to detect a difference in success rate between two policies.
+    SampleSize(sample_size::Args),
     /// One picture per suite (agentview | eye-in-hand, task 0, init 0) to outputs/smoke/.
     Smoke(smoke::Args),
     /// MP4s of stored episodes, made by replaying their actions (checks determinism).
@@ -57,6 +64,8 @@ fn main() -> anyhow::Result<()> {
         Command::Run(args) => run::run(&cli.bundles, args),
         Command::Results(args) => results::run(args),
         Command::Sql(args) => sql::run(args),
+        Command::Compare(args) => compare::run(args),
+        Command::SampleSize(args) => sample_size::run(args),
         Command::Smoke(args) => smoke::run(&cli.bundles, args),
         Command::Video(args) => video::run(&cli.bundles, args),
         Command::Bench(b) => bench::run(&cli.bundles, b),

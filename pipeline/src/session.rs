@@ -1,5 +1,6 @@
 //! A DataFusion session over a stored run: the tables `specs`, `steps`, `episodes`, `manifest`,
-//! the view `scored` (episode outcomes under a success definition), and our UDFs.
+//! the view `scored` (episode outcomes under a success definition), and our UDFs; plus the table
+//! `published` (the published LIBERO numbers, [`crate::published`]).
 
 use anyhow::{Context, Result};
 use datafusion::datasource::file_format::parquet::ParquetFormat;
@@ -54,6 +55,10 @@ pub mod queries {
     pub const SCORE: &str = include_str!("../../queries/score.sql");
     pub const RESULTS: &str = include_str!("../../queries/results.sql");
     pub const RESULTS_BY_TASK: &str = include_str!("../../queries/results_by_task.sql");
+    pub const COMPARE_PAIRS: &str = include_str!("../../queries/compare_pairs.sql");
+    pub const COMPARE: &str = include_str!("../../queries/compare.sql");
+    pub const COMPARE_BY_TASK: &str = include_str!("../../queries/compare_by_task.sql");
+    pub const SAMPLE_SIZE: &str = include_str!("../../queries/sample_size.sql");
 }
 
 /// Open a session on the run at `location`, with `scored` defined by `success` and `cap`.
@@ -67,6 +72,7 @@ pub async fn open(location: &str, success: SuccessDefinition, cap: Option<u32>) 
         ctx.register_object_store(store.base_url(), store.object_store());
     }
     libero_udfs::register_analysis_functions(&ctx);
+    crate::published::register(&ctx)?;
 
     let has_specs = store.get("specs.parquet").await?.is_some();
     let mut episode_fields: Vec<_> = tables::episodes().fields().iter().cloned().collect();

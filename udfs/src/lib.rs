@@ -6,23 +6,34 @@
 //!   each spec row's episode (env + policy, in parallel across cores) and writes its steps and its
 //!   episode row as Parquet parts to the run's object store;
 //! - [`wilson`]: `wilson(success [, level])` aggregate and `wilson_lo` / `wilson_hi` scalars;
+//! - [`mcnemar`], [`newcombe`]: paired comparison of two runs, `mcnemar_exact_p(b, c)` and
+//!   `newcombe_paired_lo` / `newcombe_paired_hi(n11, n10, n01, n00 [, level])`;
+//! - [`sample_size`]: `sample_size_two_proportions(p1, p2 [, alpha [, power]])`;
 //! - [`run_store`]: the layout of a run on an object store (parts, manifest, resume);
 //! - [`steps_batch`] / [`episode`]: building the Arrow rows of one episode.
 //!
 //! The only crate besides `pipeline` that joins `sim` and `policies`.
 
 pub mod episode;
+pub mod mcnemar;
+pub mod newcombe;
 pub mod rollout;
 pub mod run_store;
+pub mod sample_size;
 pub mod scene_view;
 pub mod steps_batch;
 pub mod wilson;
 
 use datafusion::prelude::SessionContext;
 
-/// Register the analysis functions (`wilson`, `wilson_lo`, `wilson_hi`) on a session.
+/// Register the analysis functions (`wilson`, `wilson_lo`, `wilson_hi`, `mcnemar_exact_p`,
+/// `newcombe_paired_lo`, `newcombe_paired_hi`, `sample_size_two_proportions`) on a session.
 pub fn register_analysis_functions(ctx: &SessionContext) {
     ctx.register_udaf(wilson::wilson_udaf());
     ctx.register_udf(wilson::wilson_lo_udf());
     ctx.register_udf(wilson::wilson_hi_udf());
+    ctx.register_udf(mcnemar::mcnemar_exact_p_udf());
+    ctx.register_udf(newcombe::newcombe_paired_lo_udf());
+    ctx.register_udf(newcombe::newcombe_paired_hi_udf());
+    ctx.register_udf(sample_size::sample_size_two_proportions_udf());
 }

@@ -1,0 +1,150 @@
+//! `pipeline compare RUN_A RUN_B`: a paired comparison of two runs on their common episode keys.
+//!
+//! Two policies (or two configurations) run on the same spec rows see the same init states and
+//! fixture poses, so their outcomes are paired and the right test is McNemar's on the discordant
+//! episodes, with a paired interval for the difference (Newcombe). Both runs are scored by the
+//! same `queries/score.sql` (one `--success` and `--cap` for both); the outcomes meet in the
+//! `pairs` view (`queries/compare_pairs.sql`), and `queries/compare.sql` /
+//! `queries/compare_by_task.sql` derive every number. Episodes of one run only are counted
+//! (`n_only_in_a`, `n_only_in_b`), never silently dropped.
+
+use crate::results::write_csv;
+use crate::session::{self, SuccessDefinition};
+use anyhow::{Context, Result};
+use arrow::array::{AsArray, RecordBatch};
+use arrow::datatypes::Int64Type;
+use datafusion::datasource::MemTable;
+use datafusion::prelude::SessionContext;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Run A, the reference (folder or object-store URL).
+    run_a: String,
+    /// Run B, compared with A: differences are B − A.
+    run_b: String,
+    /// Success definition applied to both runs' stored steps.
+    #[arg(long, value_enum, default_value_t = SuccessDefinition::AnyStep)]
+    success: SuccessDefinition,
+    /// Score both runs as if episodes were capped at this many policy steps.
+    #[arg(long)]
+    cap: Option<u32>,
+    /// Folder for compare.csv and compare_by_task.csv.
+    #[arg(long, default_value = "outputs")]
+    out: PathBuf,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    tokio::runtime::Runtime::new()?.block_on(async {
+        let ctx = SessionContext::new();
+        libero_udfs::register_analysis_functions(&ctx);
+        for (table, location) in [("scored_a", &args.run_a), ("scored_b", &args.run_b)] {
+            let scored = scored_rows(location, args.success, args.cap).await?;
+            ctx.register_table(table, Arc::new(scored))?;
+        }
+        ctx.sql(session::queries::COMPARE_PAIRS).await.context("queries/compare_pairs.sql")?.collect().await?;
+        let suites = ctx.sql(session::queries::COMPARE).await.context("queries/compare.sql")?.collect().await?;
+        let tasks =
+            ctx.sql(session::queries::COMPARE_BY_TASK).await.context("queries/compare_by_task.sql")?.collect().await?;
+        let all = overall(&suites);
+        if all.n_paired == 0 {
+            anyhow::bail!(
+                "runs A ({}) and B ({}) share no episode key (suite/task_id/init_state_id/seed): A has {} episodes, B has {}. \
+                 A paired comparison needs both runs made from the same spec rows: run both policies on one spec table \
+                 (`pipeline specs ... -o specs.parquet`, then `pipeline run specs.parquet --out RUN --policy P` for each).",
+                args.run_a,
+                args.run_b,
+                all.n_only_in_a,
+                all.n_only_in_b
+            );
+        }
+        std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+        write_csv(&args.out.join("compare.csv"), &suites)?;
+        write_csv(&args.out.join("compare_by_task.csv"), &tasks)?;
+        let policies = policy_names(&suites);
+        println!("A = {} ({})\nB = {} ({})", args.run_a, policies.0, args.run_b, policies.1);
+        println!(
+            "success definition: {} (both runs){}; differences are B − A, 95% interval Newcombe (paired), p exact McNemar",
+            args.success.sql_name(),
+            args.cap.map_or(String::new(), |c| format!(", cap {c} policy steps"))
+        );
+        println!("{}", arrow::util::pretty::pretty_format_batches(&display_columns(&suites)?)?);
+        if all.n_only_in_a + all.n_only_in_b > 0 {
+            eprintln!(
+                "note: {} episodes only in A and {} only in B are not paired; they are counted in n_only_in_a / n_only_in_b and in no other number",
+                all.n_only_in_a, all.n_only_in_b
+            );
+        }
+        println!("wrote {}/compare.csv and compare_by_task.csv", args.out.display());
+        Ok(())
+    })
+}
+
+/// A run's `scored` view (`queries/score.sql`) under the given definition, as an in-memory table.
+async fn scored_rows(location: &str, success: SuccessDefinition, cap: Option<u32>) -> Result<MemTable> {
+    let (run_ctx, _) =
+        session::open(location, success, cap).await.with_context(|| format!("opening run {location}"))?;
+    let scored = run_ctx.table("scored").await?;
+    let schema = Arc::new(scored.schema().as_arrow().clone());
+    let batches = scored.collect().await.with_context(|| format!("scoring run {location}"))?;
+    Ok(MemTable::try_new(schema, vec![batches])?)
+}
+
+/// The columns printed to the terminal (the CSV has them all).
+fn display_columns(batches: &[RecordBatch]) -> Result<Vec<RecordBatch>> {
+    const SHOWN: [&str; 12] = [
+        "suite",
+        "n_paired",
+        "success_rate_a",
+        "success_rate_b",
+        "n_a_only",
+        "n_b_only",
+        "diff_b_minus_a",
+        "diff_ci_lo",
+        "diff_ci_hi",
+        "mcnemar_p",
+        "n_only_in_a",
+        "n_only_in_b",
+    ];
+    batches
+        .iter()
+        .map(|b| {
+            let indices = SHOWN.map(|name| b.schema().index_of(name)).into_iter().collect::<Result<Vec<_>, _>>()?;
+            Ok(b.project(&indices)?)
+        })
+        .collect()
+}
+
+/// The policies of runs A and B, as the `all` row of `queries/compare.sql` names them.
+fn policy_names(suites: &[RecordBatch]) -> (String, String) {
+    let mut names = (String::new(), String::new());
+    for b in suites {
+        let col = |n: &str| b.column_by_name(n).expect("compare.sql column").as_string::<i32>().clone();
+        let (suite, a, bb) = (col("suite"), col("policy_a"), col("policy_b"));
+        for i in (0..b.num_rows()).filter(|&i| suite.value(i) == "all") {
+            names = (a.value(i).to_string(), bb.value(i).to_string());
+        }
+    }
+    names
+}
+
+/// The counts of the `all` row of `queries/compare.sql`.
+struct Overall {
+    n_paired: i64,
+    n_only_in_a: i64,
+    n_only_in_b: i64,
+}
+
+fn overall(suites: &[RecordBatch]) -> Overall {
+    let mut o = Overall { n_paired: 0, n_only_in_a: 0, n_only_in_b: 0 };
+    for b in suites {
+        let suite = b.column_by_name("suite").expect("compare.sql has suite").as_string::<i32>();
+        let col = |n: &str| b.column_by_name(n).expect("compare.sql column").as_primitive::<Int64Type>().clone();
+        let (paired, only_a, only_b) = (col("n_paired"), col("n_only_in_a"), col("n_only_in_b"));
+        for i in (0..b.num_rows()).filter(|&i| suite.value(i) == "all") {
+            o = Overall { n_paired: paired.value(i), n_only_in_a: only_a.value(i), n_only_in_b: only_b.value(i) };
+        }
+    }
+    o
+}

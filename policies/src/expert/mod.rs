@@ -254,3 +254,74 @@ pub(crate) fn action(pos: [f64; 3], rot: [f64; 3], gripper: f64) -> Action {
     let c = |x: f64| x.clamp(-1.0, 1.0) as f32;
     [c(pos[0]), c(pos[1]), c(pos[2]), c(rot[0]), c(rot[1]), c(rot[2]), c(gripper)]
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{ObjectFacts, ObjectState, SceneState, TaskFacts};
+    use crate::{LiftPolicy, RandomPolicy};
+    use std::sync::Arc;
+
+    #[test]
+    fn only_the_expert_asks_for_privileged_state_and_it_fails_loudly_without_it() {
+        assert!(Expert::new().wants_scene());
+        assert!(!RandomPolicy::new().wants_scene() && !LiftPolicy.wants_scene());
+        let err = Expert::new().act(&Observation::default()).unwrap_err();
+        assert!(err.detail.contains("no scene view"), "{err}");
+    }
+
+    #[test]
+    fn a_goal_it_cannot_plan_for_is_an_error_naming_the_predicate() {
+        let facts = TaskFacts {
+            goal: vec![vec!["up".into(), "bowl".into()]],
+            objects: vec![ObjectFacts { name: "bowl".into(), fixture: false }],
+            ..Default::default()
+        };
+        let scene = SceneView {
+            facts: Arc::new(facts),
+            state: SceneState { objects: vec![ObjectState::default()], goal_terms: vec![false], ..Default::default() },
+        };
+        let obs = Observation { scene: Some(scene), ..Default::default() };
+        let err = Expert::new().act(&obs).unwrap_err();
+        assert!(err.detail.contains("\"up\""), "{err}");
+    }
+
+    #[test]
+    fn drawers_open_first_and_close_last_around_the_placement() {
+        let facts = TaskFacts {
+            goal: vec![
+                vec!["close".into(), "cabinet_region".into()],
+                vec!["in".into(), "bowl".into(), "cabinet_region".into()],
+            ],
+            objects: vec![
+                ObjectFacts { name: "bowl".into(), fixture: false },
+                ObjectFacts { name: "cabinet".into(), fixture: true },
+            ],
+            sites: vec![crate::scene::SiteFacts {
+                name: "cabinet_region".into(),
+                parent: Some("cabinet".into()),
+                size: [0.1; 3],
+                joints: vec!["slide".into()],
+            }],
+            joints: vec![crate::scene::JointFacts {
+                name: "slide".into(),
+                owner: "cabinet".into(),
+                slide: true,
+                open: Some(crate::scene::JointRule { above: false, value: -0.14 }),
+                close: Some(crate::scene::JointRule { above: true, value: 0.0 }),
+                turn_on: None,
+                turn_off: None,
+            }],
+        };
+        let view = SceneView { facts: Arc::new(facts), state: SceneState::default() };
+        let plan: Vec<Skill> = Expert::make_plan(&view).unwrap().into_iter().map(|(s, _)| s).collect();
+        assert_eq!(
+            plan,
+            [
+                Skill::Articulate { joint: 0, op: "open".into() },
+                Skill::Place { obj: 0, relation: "in".into(), target: "cabinet_region".into() },
+                Skill::Articulate { joint: 0, op: "close".into() },
+            ]
+        );
+    }
+}

@@ -1,0 +1,116 @@
+//! The privileged scripted expert through the ordinary pipeline, on the real environment: the
+//! positive control (the success detector fires when a task *is* done, and the grasp evidence is in
+//! the stored steps), and real episodes where any-step and last-step scoring disagree.
+//!
+//! Kept small for CI (6 episodes); the full canonical protocol (50 trials × 40 tasks) is the
+//! README's documented command.
+
+use libero_e2e::{pipeline_bin, repo_root};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn pipeline(args: &[&str]) -> Output {
+    Command::new(pipeline_bin()).args(args).current_dir(repo_root()).output().expect("run pipeline")
+}
+
+fn ok(out: Output) -> String {
+    assert!(
+        out.status.success(),
+        "pipeline failed:\nstdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("libero-expert-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// `pipeline sql` as CSV rows (header dropped).
+fn sql(run: &Path, query: &str, extra: &[&str]) -> Vec<Vec<String>> {
+    let mut args = vec!["sql", query, "--run", run.to_str().unwrap(), "--csv"];
+    args.extend_from_slice(extra);
+    let text = ok(pipeline(&args));
+    text.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect()
+}
+
+/// Specs for `suite` / `tasks` with `trials` per task, run with the expert into `dir/run`.
+fn expert_run(dir: &Path, suite: &str, tasks: &str, trials: &str) -> PathBuf {
+    let specs = dir.join("specs.parquet");
+    let s = specs.to_str().unwrap();
+    ok(pipeline(&["specs", "--suites", suite, "--tasks", tasks, "--trials", trials, "-o", s]));
+    let run = dir.join("run");
+    ok(pipeline(&["run", s, "--out", run.to_str().unwrap(), "--policy", "expert"]));
+    run
+}
+
+#[test]
+fn the_expert_solves_real_tasks_and_its_grasps_are_in_the_stored_steps() {
+    let d = tmp("positive");
+    // Bowl onto the plate (rim grasp) on libero_spatial; both solved on every init state measured.
+    let run = expert_run(&d, "libero_spatial", "0,8", "2");
+    let rows = sql(
+        &run,
+        "SELECT count(*), sum(CAST(success AS INT)), sum(CAST(error_kind IS NOT NULL AS INT)) FROM episodes",
+        &[],
+    );
+    assert_eq!(rows[0], ["4", "4", "0"], "the expert must solve these episodes");
+    // The evidence: the bowl touched the gripper, and was lifted, before the goal held.
+    let rows = sql(
+        &run,
+        "SELECT s.episode_key, \
+                min(CASE WHEN array_has(s.gripper_contacts, 'akita_black_bowl_1') THEN s.policy_step END) AS first_grasp, \
+                min(e.first_success_step) AS first_success \
+         FROM steps s JOIN episodes e ON e.episode_key = s.episode_key \
+         GROUP BY s.episode_key ORDER BY s.episode_key",
+        &[],
+    );
+    assert_eq!(rows.len(), 4);
+    for r in &rows {
+        let (grasp, success): (i64, i64) = (r[1].parse().unwrap(), r[2].parse().unwrap());
+        assert!(grasp < success, "{}: grasped at {grasp}, succeeded at {success}", r[0]);
+    }
+    // The run records a privileged policy: nobody mistakes it for a learned one.
+    let m = sql(&run, "SELECT policy, policy_identity FROM manifest", &[]);
+    assert_eq!(m[0][0], "expert");
+    assert!(m[0].join(",").contains("privileged"), "{m:?}");
+}
+
+#[test]
+fn real_expert_episodes_where_any_step_and_last_step_disagree() {
+    let d = tmp("rescoring");
+    // "Put the wine bottle on the rack": the expert sets it on the rack (the goal holds), and it
+    // tips off after the release: an any-step success and a last-step failure.
+    let run = expert_run(&d, "libero_goal", "9", "1");
+    let r = run.to_str().unwrap();
+    let q = "SELECT count(*), sum(CAST(scored_success AS INT)) FROM scored";
+    assert_eq!(sql(&run, q, &[])[0], ["1", "1"], "any-step");
+    assert_eq!(sql(&run, q, &["--success", "last-step"])[0], ["1", "0"], "last-step");
+    // The stored evidence says the same: the goal held at some steps and not at the last one.
+    let rows = sql(
+        &run,
+        "SELECT sum(CAST(goal AS INT)), max(policy_step), \
+                bool_or(goal AND policy_step = (SELECT max(policy_step) FROM steps)) FROM steps",
+        &[],
+    );
+    assert!(rows[0][0].parse::<i64>().unwrap() > 0, "{rows:?}");
+    assert_eq!(rows[0][2], "false");
+    // A cap before the first success turns it into a failure under either definition.
+    let first: i64 = sql(&run, "SELECT first_success_step FROM episodes", &[])[0][0].parse().unwrap();
+    let cap = (first - 1).to_string();
+    assert_eq!(sql(&run, q, &["--cap", &cap])[0], ["1", "0"], "cap {cap}");
+    // results.csv says which definition it used, from the same stored steps.
+    for (success, expect) in [("any-step", "1"), ("last-step", "0")] {
+        let out = d.join(success);
+        ok(pipeline(&["results", "--run", r, "--success", success, "--out", out.to_str().unwrap()]));
+        let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
+        let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+        let row: Vec<&str> = csv.lines().nth(1).unwrap().split(',').collect();
+        let col = |n: &str| row[header.iter().position(|h| *h == n).unwrap()];
+        assert_eq!((col("success_definition"), col("n_success")), (success, expect));
+    }
+}

@@ -6,7 +6,8 @@
 #   2b. libtorch 2.11.0 (for tch 0.24.0) from the PyPI torch wheel, cached, linked as third_party/libtorch;
 #   3. the Python reference LIBERO env (the oracle) in a cached venv, linked as .venv;
 #   4. the task bundles of the four suites, cached and linked as data/bundles;
-#   5. `cargo build --release` of the workspace, and a smoke run of real env steps on every suite.
+#   5. `cargo build --release` of the workspace, and the main job on a small default (random, lift and the
+#      scripted expert side by side on 20 real episodes each) and the smoke pictures.
 # Caches live in $LIBERO_EVAL_CACHE (default ~/.cache/libero-eval), keyed by the scripts that make them.
 # Options: --suites LIST (default: the four canonical suites; e.g. add libero_90), --no-build.
 set -euo pipefail
@@ -101,12 +102,15 @@ ln -sfn "$FRAMES" data/frames
 if [ "$BUILD" = 1 ]; then
   step "cargo build --release"
   cargo build --release --quiet
-  step "main job, small default: the lift baseline on libero_spatial + libero_object, 1 trial per task"
+  step "main job, small default: random, lift and the expert on libero_spatial + libero_object, 1 trial per task"
   rm -rf outputs/smoke
   P="${CARGO_TARGET_DIR:-target}/release/pipeline"
   "$P" specs --suites libero_spatial,libero_object --trials 1 -o outputs/smoke/specs.parquet
-  "$P" run outputs/smoke/specs.parquet --out outputs/smoke/lift --policy lift
-  "$P" results --run outputs/smoke/lift --out outputs/smoke
+  for policy in random lift expert; do
+    "$P" run outputs/smoke/specs.parquet --out "outputs/smoke/$policy" --policy "$policy" >/dev/null
+  done
+  # One table, the three policies side by side: the baselines must fail (<= 5%), the expert succeed.
+  "$P" results --run outputs/smoke/random --run outputs/smoke/lift --run outputs/smoke/expert --out outputs/smoke
   step "smoke pictures: outputs/smoke/<suite>.png (agentview | eye-in-hand, task 0, init 0)"
   "$P" smoke --out outputs/smoke
 fi

@@ -3,6 +3,7 @@
 SELECT suite,
        task_id,
        min(instruction) AS instruction,
+       min(policy) AS policy,
        min(success_definition) AS success_definition,
        count(*) AS n_total,
        sum(CAST(scored_success AS BIGINT)) AS n_success,

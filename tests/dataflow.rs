@@ -202,6 +202,40 @@ fn baselines_score_at_most_five_percent_and_results_are_written_with_wilson_inte
 }
 
 #[test]
+fn several_runs_side_by_side_in_one_results_table() {
+    let b = baselines();
+    let outputs = b.dir.join("side-by-side");
+    let (random, lift) = (b.dir.join("random"), b.dir.join("lift"));
+    let o = outputs.to_str().unwrap();
+    ok(pipeline(&["results", "--run", random.to_str().unwrap(), "--run", lift.to_str().unwrap(), "--out", o]));
+    let csv = std::fs::read_to_string(outputs.join("results.csv")).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let (suite, policy) =
+        (header.iter().position(|h| *h == "suite").unwrap(), header.iter().position(|h| *h == "policy").unwrap());
+    let mut rows: Vec<(String, String)> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect::<Vec<_>>())
+        .map(|r| (r[policy].to_string(), r[suite].to_string()))
+        .collect();
+    rows.sort();
+    let expect: Vec<(String, String)> = [
+        ("lift", "libero_object"),
+        ("lift", "libero_spatial"),
+        ("random", "libero_object"),
+        ("random", "libero_spatial"),
+    ]
+    .iter()
+    .map(|(p, s)| (p.to_string(), s.to_string()))
+    .collect();
+    assert_eq!(rows, expect);
+    // 2 runs × 20 tasks, each row saying whose it is
+    let by_task = std::fs::read_to_string(outputs.join("results_by_task.csv")).unwrap();
+    assert_eq!(by_task.lines().count(), 41);
+    assert!(by_task.lines().nth(1).unwrap().contains(",random,") && by_task.lines().last().unwrap().contains(",lift,"));
+}
+
+#[test]
 fn stored_steps_are_complete_and_the_users_query_works() {
     let run = baselines().dir.join("lift");
     // every episode ran to its cap: wait steps + max_steps rows, each step once

@@ -2,7 +2,7 @@
 //! `queries/results_by_task.sql`) under a chosen success definition and cap, printed and written
 //! as CSV. Re-scoring never re-runs anything: it is the same stored steps, another query.
 
-use crate::session::{self, RunScoring};
+use crate::session::{self, SuccessDefinition};
 use anyhow::{Context, Result};
 use arrow::array::{AsArray, RecordBatch};
 use arrow::datatypes::Float64Type;
@@ -14,8 +14,16 @@ pub const BASELINE_MAX_SUCCESS: f64 = 0.05;
 
 #[derive(clap::Args)]
 pub struct Args {
-    #[command(flatten)]
-    scoring: RunScoring,
+    /// The run (folder or object-store URL). Repeat it to put several runs side by side (e.g. a
+    /// policy and its baselines): one table, one row per (suite, run), each from its own steps.
+    #[arg(long, required = true)]
+    run: Vec<String>,
+    /// Success definition used to score the stored steps (the `scored` view).
+    #[arg(long, value_enum, default_value_t = SuccessDefinition::AnyStep)]
+    success: SuccessDefinition,
+    /// Score as if episodes were capped at this many policy steps (never longer than they ran).
+    #[arg(long)]
+    cap: Option<u32>,
     /// Folder for results.csv and results_by_task.csv.
     #[arg(long, default_value = "outputs")]
     out: PathBuf,
@@ -23,22 +31,29 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
-        let (ctx, store) = args.scoring.open().await?;
-        let manifest = store.read_manifest().await?.context("the run has no manifest")?;
-        let suites = ctx.sql(session::queries::RESULTS).await?.collect().await?;
-        let tasks = ctx.sql(session::queries::RESULTS_BY_TASK).await?.collect().await?;
+        let (mut suites, mut tasks, mut warnings) = (vec![], vec![], vec![]);
+        for location in &args.run {
+            let (ctx, store) = session::open(location, args.success, args.cap).await?;
+            let manifest = store.read_manifest().await?.context("the run has no manifest")?;
+            let run_suites = ctx.sql(session::queries::RESULTS).await?.collect().await?;
+            tasks.extend(ctx.sql(session::queries::RESULTS_BY_TASK).await?.collect().await?);
+            if let Ok(policy) = manifest.policy.parse::<PolicySpec>() {
+                warnings.push((policy, run_suites.clone()));
+            }
+            suites.extend(run_suites);
+        }
         std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
         write_csv(&args.out.join("results.csv"), &suites)?;
         write_csv(&args.out.join("results_by_task.csv"), &tasks)?;
         println!(
             "success definition: {}{}",
-            args.scoring.success.sql_name(),
-            args.scoring.cap.map_or(String::new(), |c| format!(", cap {c} policy steps"))
+            args.success.sql_name(),
+            args.cap.map_or(String::new(), |c| format!(", cap {c} policy steps"))
         );
         println!("{}", arrow::util::pretty::pretty_format_batches(&suites)?);
         println!("wrote {}/results.csv and results_by_task.csv", args.out.display());
-        if let Ok(policy) = manifest.policy.parse::<PolicySpec>() {
-            warn_on_baseline(&policy, &suites);
+        for (policy, run_suites) in &warnings {
+            warn_on_baseline(policy, run_suites);
         }
         Ok(())
     })

@@ -201,7 +201,7 @@ impl Policy for Expert {
             }
             match step {
                 Step::Act(a) => {
-                    if self.trace_every > 0 && self.state.phase_steps % self.trace_every == 0 {
+                    if self.trace_every > 0 && self.state.phase_steps.is_multiple_of(self.trace_every) {
                         let q = obs.eef_quat;
                         eprintln!(
                             "expert step {:3}   phase {} n {} eef [{:.3} {:.3} {:.3}] quat [{:.3} {:.3} {:.3} {:.3}] action {:.2?}",

@@ -139,9 +139,9 @@ fn for_each_corner(env: &LiberoEnv, geoms: &[usize], mut f: impl FnMut([f64; 3])
 fn world_box(env: &LiberoEnv, geoms: &[usize]) -> Box3 {
     let mut b = ([f64::MAX; 3], [f64::MIN; 3]);
     for_each_corner(env, geoms, |p| {
-        for i in 0..3 {
-            b.0[i] = b.0[i].min(p[i]);
-            b.1[i] = b.1[i].max(p[i]);
+        for (i, x) in p.into_iter().enumerate() {
+            b.0[i] = b.0[i].min(x);
+            b.1[i] = b.1[i].max(x);
         }
     });
     b

@@ -131,7 +131,13 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
 /// give 4 both, 1 A-only, 3 B-only (2 of task 0's and 1 of task 1's are transient in B), 2
 /// neither. libero_object (task 0): inits 0..9 paired with 5 both and 5 neither; A alone has
 /// inits 10, 11 and B alone 12, 13, 14.
+/// Built once: tests run in parallel, and a second build would delete the folder under the first.
 fn paired_runs() -> (PathBuf, PathBuf) {
+    static RUNS: std::sync::OnceLock<(PathBuf, PathBuf)> = std::sync::OnceLock::new();
+    RUNS.get_or_init(build_paired_runs).clone()
+}
+
+fn build_paired_runs() -> (PathBuf, PathBuf) {
     use Outcome::*;
     let d = tmp("runs");
     let (mut a, mut b) = (vec![], vec![]);

@@ -2,12 +2,11 @@
 //! runs written with the library's own builders (real Parquet parts on disk, no simulation) whose
 //! paired outcomes are known by construction.
 
-use libero_e2e::repo_root;
+use libero_e2e::{ok, pipeline, test_dir};
 use libero_udfs::episode::{EpisodeContext, EpisodeProtocol, EpisodeSummary, episode_batch};
 use libero_udfs::steps_batch::{EpisodeKey, StepRecord, StepsBatchBuilder};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 const MAX_STEPS: u32 = 20;
 const WAIT: u32 = 2;
@@ -31,31 +30,8 @@ fn goal(outcome: Outcome, p: u32) -> bool {
     }
 }
 
-/// The binary under test: `LIBERO_PIPELINE_BIN` when set (a copy, safe from another build
-/// replacing the shared target's binary mid-test), else the one cargo built.
-fn pipeline_bin() -> PathBuf {
-    std::env::var_os("LIBERO_PIPELINE_BIN").map_or_else(libero_e2e::pipeline_bin, PathBuf::from)
-}
-
-fn pipeline(args: &[&str]) -> Output {
-    Command::new(pipeline_bin()).args(args).current_dir(repo_root()).output().expect("run pipeline")
-}
-
-fn ok(out: Output) -> String {
-    assert!(
-        out.status.success(),
-        "pipeline failed:\nstdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("libero-compare-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    test_dir("compare", name)
 }
 
 /// A run folder with one steps part and one episode part per (suite, task, init, seed, outcome).

@@ -4,39 +4,18 @@
 
 use arrow::array::{ArrayRef, Int32Array, Int64Array, RecordBatch, StringArray};
 use arrow::datatypes::{Field, Schema};
-use libero_e2e::{pipeline_bin, reference_python, repo_root};
+use libero_e2e::{ok, pipeline, pipeline_bin, reference_python, repo_root, test_dir};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
-fn pipeline(args: &[&str]) -> Output {
-    Command::new(pipeline_bin()).args(args).current_dir(repo_root()).output().expect("run pipeline")
-}
-
-fn ok(out: Output) -> String {
-    assert!(
-        out.status.success(),
-        "pipeline failed:\nstdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("libero-dataflow-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    test_dir("dataflow", name)
 }
 
-/// `pipeline sql` as CSV rows (header dropped).
 fn sql(run: &Path, query: &str, extra: &[&str]) -> Vec<Vec<String>> {
-    let mut args = vec!["sql", query, "--run", run.to_str().unwrap(), "--csv"];
-    args.extend_from_slice(extra);
-    let text = ok(pipeline(&args));
-    text.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect()
+    libero_e2e::sql_rows(run, query, extra)
 }
 
 fn sql_one(run: &Path, query: &str) -> String {

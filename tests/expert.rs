@@ -5,37 +5,15 @@
 //! Kept small for CI (6 episodes); the full canonical protocol (50 trials × 40 tasks) is the
 //! README's documented command.
 
-use libero_e2e::{pipeline_bin, repo_root};
+use libero_e2e::{ok, pipeline, test_dir};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn pipeline(args: &[&str]) -> Output {
-    Command::new(pipeline_bin()).args(args).current_dir(repo_root()).output().expect("run pipeline")
-}
-
-fn ok(out: Output) -> String {
-    assert!(
-        out.status.success(),
-        "pipeline failed:\nstdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("libero-expert-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    test_dir("expert", name)
 }
 
-/// `pipeline sql` as CSV rows (header dropped).
 fn sql(run: &Path, query: &str, extra: &[&str]) -> Vec<Vec<String>> {
-    let mut args = vec!["sql", query, "--run", run.to_str().unwrap(), "--csv"];
-    args.extend_from_slice(extra);
-    let text = ok(pipeline(&args));
-    text.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect()
+    libero_e2e::sql_rows(run, query, extra)
 }
 
 /// Specs for `suite` / `tasks` with `trials` per task, run with the expert into `dir/run`.

@@ -9,7 +9,7 @@
 //! (`n_only_in_a`, `n_only_in_b`), never silently dropped.
 
 use crate::results::write_csv;
-use crate::session::{self, SuccessDefinition};
+use crate::session::{self, Scoring, SuccessDefinition};
 use anyhow::{Context, Result};
 use arrow::array::{AsArray, RecordBatch};
 use arrow::datatypes::Int64Type;
@@ -24,12 +24,9 @@ pub struct Args {
     run_a: String,
     /// Run B, compared with A: differences are B − A.
     run_b: String,
-    /// Success definition applied to both runs' stored steps.
-    #[arg(long, value_enum, default_value_t = SuccessDefinition::AnyStep)]
-    success: SuccessDefinition,
-    /// Score both runs as if episodes were capped at this many policy steps.
-    #[arg(long)]
-    cap: Option<u32>,
+    /// Applied to both runs' stored steps alike.
+    #[command(flatten)]
+    scoring: Scoring,
     /// Folder for compare.csv and compare_by_task.csv.
     #[arg(long, default_value = "outputs")]
     out: PathBuf,
@@ -40,7 +37,7 @@ pub fn run(args: Args) -> Result<()> {
         let ctx = SessionContext::new();
         libero_udfs::register_analysis_functions(&ctx);
         for (table, location) in [("scored_a", &args.run_a), ("scored_b", &args.run_b)] {
-            let scored = scored_rows(location, args.success, args.cap).await?;
+            let scored = scored_rows(location, args.scoring.success, args.scoring.cap).await?;
             ctx.register_table(table, Arc::new(scored))?;
         }
         ctx.sql(session::queries::COMPARE_PAIRS).await.context("queries/compare_pairs.sql")?.collect().await?;
@@ -65,9 +62,8 @@ pub fn run(args: Args) -> Result<()> {
         let policies = policy_names(&suites);
         println!("A = {} ({})\nB = {} ({})", args.run_a, policies.0, args.run_b, policies.1);
         println!(
-            "success definition: {} (both runs){}; differences are B − A, 95% interval Newcombe (paired), p exact McNemar",
-            args.success.sql_name(),
-            args.cap.map_or(String::new(), |c| format!(", cap {c} policy steps"))
+            "success definition: {} (both runs); differences are B − A, 95% interval Newcombe (paired), p exact McNemar",
+            args.scoring.describe()
         );
         println!("{}", arrow::util::pretty::pretty_format_batches(&display_columns(&suites)?)?);
         if all.n_only_in_a + all.n_only_in_b > 0 {

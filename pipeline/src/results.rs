@@ -2,7 +2,7 @@
 //! `queries/results_by_task.sql`) under a chosen success definition and cap, printed and written
 //! as CSV. Re-scoring never re-runs anything: it is the same stored steps, another query.
 
-use crate::session::{self, SuccessDefinition};
+use crate::session::{self, Scoring};
 use anyhow::{Context, Result};
 use arrow::array::{AsArray, RecordBatch};
 use arrow::datatypes::Float64Type;
@@ -18,12 +18,8 @@ pub struct Args {
     /// policy and its baselines): one table, one row per (suite, run), each from its own steps.
     #[arg(long, required = true)]
     run: Vec<String>,
-    /// Success definition used to score the stored steps (the `scored` view).
-    #[arg(long, value_enum, default_value_t = SuccessDefinition::AnyStep)]
-    success: SuccessDefinition,
-    /// Score as if episodes were capped at this many policy steps (never longer than they ran).
-    #[arg(long)]
-    cap: Option<u32>,
+    #[command(flatten)]
+    scoring: Scoring,
     /// Folder for results.csv and results_by_task.csv.
     #[arg(long, default_value = "outputs")]
     out: PathBuf,
@@ -33,7 +29,7 @@ pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
         let (mut suites, mut tasks, mut warnings) = (vec![], vec![], vec![]);
         for location in &args.run {
-            let (ctx, store) = session::open(location, args.success, args.cap).await?;
+            let (ctx, store) = session::open(location, args.scoring.success, args.scoring.cap).await?;
             let manifest = store.read_manifest().await?.context("the run has no manifest")?;
             let run_suites = ctx.sql(session::queries::RESULTS).await?.collect().await?;
             tasks.extend(ctx.sql(session::queries::RESULTS_BY_TASK).await?.collect().await?);
@@ -45,11 +41,7 @@ pub fn run(args: Args) -> Result<()> {
         std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
         write_csv(&args.out.join("results.csv"), &suites)?;
         write_csv(&args.out.join("results_by_task.csv"), &tasks)?;
-        println!(
-            "success definition: {}{}",
-            args.success.sql_name(),
-            args.cap.map_or(String::new(), |c| format!(", cap {c} policy steps"))
-        );
+        println!("success definition: {}", args.scoring.describe());
         println!("{}", arrow::util::pretty::pretty_format_batches(&suites)?);
         println!("wrote {}/results.csv and results_by_task.csv", args.out.display());
         for (policy, run_suites) in &warnings {

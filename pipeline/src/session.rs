@@ -29,12 +29,10 @@ impl SuccessDefinition {
     }
 }
 
-/// Which run to open and how its `scored` view scores episodes (shared by `results` and `sql`).
-#[derive(clap::Args)]
-pub struct RunScoring {
-    /// The run (folder or object-store URL).
-    #[arg(long)]
-    pub run: String,
+/// How stored steps are scored: the success definition and an optional shorter cap (the
+/// `scored` view; shared by `results`, `sql` and `compare`).
+#[derive(clap::Args, Clone, Copy)]
+pub struct Scoring {
     /// Success definition used to score the stored steps (the `scored` view).
     #[arg(long, value_enum, default_value_t = SuccessDefinition::AnyStep)]
     pub success: SuccessDefinition,
@@ -43,9 +41,26 @@ pub struct RunScoring {
     pub cap: Option<u32>,
 }
 
+impl Scoring {
+    /// "any-step" or "last-step, cap 40 policy steps": how tables printed under it were scored.
+    pub fn describe(&self) -> String {
+        format!("{}{}", self.success.sql_name(), self.cap.map_or(String::new(), |c| format!(", cap {c} policy steps")))
+    }
+}
+
+/// Which run to open and how its `scored` view scores episodes (shared by `results` and `sql`).
+#[derive(clap::Args)]
+pub struct RunScoring {
+    /// The run (folder or object-store URL).
+    #[arg(long)]
+    pub run: String,
+    #[command(flatten)]
+    pub scoring: Scoring,
+}
+
 impl RunScoring {
     pub async fn open(&self) -> Result<(SessionContext, RunStore)> {
-        open(&self.run, self.success, self.cap).await
+        open(&self.run, self.scoring.success, self.scoring.cap).await
     }
 }
 

@@ -4,7 +4,8 @@
 #   1. Debian packages (EGL/Mesa for headless rendering, ffmpeg, a font) when run as root;
 #   2. MuJoCo 3.3.7 library + headers from the PyPI wheel (third_party/, for mujoco-rs 2.3.5);
 #   2b. libtorch 2.11.0 (for tch 0.24.0) from the PyPI torch wheel, cached, linked as third_party/libtorch;
-#   3. the Python reference LIBERO env (the oracle) in a cached venv, linked as .venv;
+#   3. the Python reference LIBERO env (the oracle) in a cached venv, linked as .venv, and the notebook's
+#      small venv (polars, matplotlib, jupytext), linked as .nb-venv;
 #   4. the task bundles of the four suites, cached and linked as data/bundles;
 #   5. `cargo build --release` of the workspace, and the main job on a small default (random, lift and the
 #      scripted expert side by side on 20 real episodes each) and the smoke pictures.
@@ -49,6 +50,11 @@ VENV_KEY=$(cat scripts/setup/reference_venv.sh | sha256sum | cut -c1-12)
 VENV="$CACHE/ref-venv-$VENV_KEY"
 bash scripts/setup/reference_venv.sh "$VENV"
 ln -sfn "$VENV" .venv
+
+step "notebook venv (polars, pyarrow, matplotlib, jupytext, nbclient, ipykernel)"
+NB_VENV="$CACHE/nb-venv-$(sha256sum scripts/setup/notebook_venv.sh | cut -c1-12)"
+bash scripts/setup/notebook_venv.sh "$NB_VENV"
+ln -sfn "$NB_VENV" .nb-venv
 
 step "task bundles ($SUITES)"
 BUNDLE_KEY=$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py scripts/reference/libero_ref.py | sha256sum | cut -c1-12)

@@ -12,7 +12,9 @@ fn help_lists_the_subcommands_that_exist() {
     let out = pipeline(&["--help"]);
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
-    for cmd in ["tasks", "specs", "run", "results", "sql", "smoke", "video", "bench"] {
+    for cmd in [
+        "tasks", "specs", "run", "results", "failures", "sql", "compare", "sample-size", "smoke", "video", "videos", "bench",
+    ] {
         assert!(text.contains(cmd), "{cmd} missing from --help:\n{text}");
     }
 }

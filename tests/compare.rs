@@ -2,7 +2,7 @@
 //! runs written with the library's own builders (real Parquet parts on disk, no simulation) whose
 //! paired outcomes are known by construction.
 
-use libero_e2e::{ok, pipeline, test_dir};
+use libero_e2e::{ok, pipeline, test_dir, write_constructed_manifest, write_episode_parts};
 use libero_udfs::episode::{EpisodeContext, EpisodeProtocol, EpisodeSummary, episode_batch};
 use libero_udfs::steps_batch::{EpisodeKey, StepRecord, StepsBatchBuilder};
 use std::collections::HashMap;
@@ -71,6 +71,7 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
             first_success_step: first,
             final_goal: goal(outcome, MAX_STEPS - 1),
             goal_terms: vec!["on bowl_1 plate_1".into()],
+            objects_of_interest: vec!["bowl".into()],
             error: None,
             wall_s: 1.0,
             sim_s: 1.0,
@@ -78,29 +79,9 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
         };
         let ctx = EpisodeContext { policy, run_config: policy, protocol: &protocol };
         let ep = episode_batch(&key, &summary, &ctx, None).unwrap();
-        for (sub, batch) in [("steps", b.finish().unwrap()), ("episodes", ep)] {
-            let bytes = libero_udfs::run_store::parquet_bytes(&batch, None).unwrap();
-            std::fs::write(dir.join(sub).join(key.part_name()), bytes).unwrap();
-        }
+        write_episode_parts(dir, &key, b, &ep);
     }
-    let manifest = libero_schema::RunManifest {
-        tables_version: libero_schema::tables::TABLES_VERSION,
-        run_config: policy.into(),
-        created_at: "2026-01-01T00:00:00Z".into(),
-        git_revision: "test".into(),
-        pipeline_version: "0".into(),
-        mujoco_version: "3.3.7".into(),
-        bundle_format_version: 1,
-        bundles_hash: "none".into(),
-        policy: policy.into(),
-        policy_identity: serde_json::json!({}),
-        num_steps_wait: WAIT as i32,
-        max_steps: Default::default(),
-        stop_on_success: false,
-        substeps_per_step: 25,
-        control_freq_hz: 20,
-    };
-    std::fs::write(dir.join("manifest.json"), serde_json::to_vec(&manifest).unwrap()).unwrap();
+    write_constructed_manifest(dir, policy, WAIT);
 }
 
 /// The two runs. libero_spatial (tasks 0 and 1, inits 0..9, seed 7): per task, A/B outcomes

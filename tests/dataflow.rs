@@ -365,6 +365,7 @@ fn synthetic_run() -> PathBuf {
             first_success_step: first,
             final_goal: goal(99),
             goal_terms: vec!["on bowl_1 plate_1".into()],
+            objects_of_interest: vec!["bowl".into()],
             error: None,
             wall_s: 1.0,
             sim_s: 1.0,

@@ -91,4 +91,44 @@ fn real_expert_episodes_where_any_step_and_last_step_disagree() {
         let col = |n: &str| row[header.iter().position(|h| *h == n).unwrap()];
         assert_eq!((col("success_definition"), col("n_success")), (success, expect));
     }
+    // Its failure mode under last-step scoring says so; any-step has no failure to explain.
+    let fm = sql(&run, "SELECT failure_mode, goal_progress FROM failure_modes", &["--success", "last-step"]);
+    assert_eq!(fm, [["transient_success", "true"]]);
+    assert!(sql(&run, "SELECT failure_mode FROM failure_modes", &[]).is_empty());
+    // The rollout recorded which objects matter: the bottle and the rack that owns the region.
+    let interest = sql(&run, "SELECT array_to_string(objects_of_interest, ' ') FROM episodes", &[]);
+    assert_eq!(interest, [["wine_bottle_1 wine_rack_1"]]);
+}
+
+/// The expert forced to let go early in its first carry (`--policy expert-drop`): a real drop, on
+/// the real scene, which the failure analysis must call `dropped`, with the bowl as the object.
+#[test]
+fn a_forced_early_release_of_the_expert_is_a_dropped_failure() {
+    let d = tmp("drop");
+    let specs = d.join("specs.parquet");
+    let s = specs.to_str().unwrap();
+    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0", "--trials", "1", "-o", s]));
+    let run = d.join("run");
+    ok(pipeline(&["run", s, "--out", run.to_str().unwrap(), "--policy", "expert-drop", "--max-steps", "120"]));
+    let out = d.join("outputs");
+    ok(pipeline(&["failures", "--run", run.to_str().unwrap(), "--out", out.to_str().unwrap()]));
+    let rows = sql(
+        &run,
+        "SELECT failure_mode, fallen_object, interest_fall_m >= 0.03, interest_grasped, policy FROM failure_modes",
+        &[],
+    );
+    assert_eq!(rows, [["dropped", "akita_black_bowl_1", "true", "true", "expert-drop"]]);
+    let csv = std::fs::read_to_string(out.join("failure_modes.csv")).unwrap();
+    assert!(csv.lines().nth(1).is_some_and(|l| l.contains(",dropped,")), "{csv}");
+
+    // The selection query picks it (first failure of the suite, first `dropped`), and `videos`
+    // renders it by replay under the selection's file name.
+    let videos = d.join("failures");
+    ok(pipeline(&["videos", "--run", run.to_str().unwrap(), "--out", videos.to_str().unwrap(), "--size", "128"]));
+    let selection = std::fs::read_to_string(videos.join("selection.csv")).unwrap();
+    let row = selection.lines().nth(1).unwrap_or_default();
+    assert!(row.contains("first dropped") && row.contains("first failure"), "{selection}");
+    assert!(row.ends_with("libero_spatial_task0_init0.mp4"), "{selection}");
+    let mp4 = std::fs::metadata(videos.join("libero_spatial_task0_init0.mp4")).unwrap();
+    assert!(mp4.len() > 10_000, "{} bytes", mp4.len());
 }

@@ -83,3 +83,41 @@ pub fn sql_rows(run: &Path, query: &str, extra: &[&str]) -> Vec<Vec<String>> {
     let text = ok(pipeline(&args));
     text.lines().skip(1).map(|l| l.split(',').map(str::to_string).collect()).collect()
 }
+
+/// Write one constructed episode (its steps batch and its one-row episode batch) into a run
+/// folder, as the rollout would: `steps/<part>` and `episodes/<part>`.
+pub fn write_episode_parts(
+    dir: &Path,
+    key: &libero_udfs::steps_batch::EpisodeKey,
+    steps: libero_udfs::steps_batch::StepsBatchBuilder,
+    episode: &arrow::array::RecordBatch,
+) {
+    for (sub, batch) in [("steps", steps.finish().unwrap()), ("episodes", episode.clone())] {
+        std::fs::create_dir_all(dir.join(sub)).unwrap();
+        let bytes = libero_udfs::run_store::parquet_bytes(&batch, None).unwrap();
+        std::fs::write(dir.join(sub).join(key.part_name()), bytes).unwrap();
+    }
+}
+
+/// The `manifest.json` of a constructed run (no simulation behind it: bundles and MuJoCo are
+/// named as such).
+pub fn write_constructed_manifest(dir: &Path, policy: &str, num_steps_wait: u32) {
+    let manifest = libero_schema::RunManifest {
+        tables_version: libero_schema::tables::TABLES_VERSION,
+        run_config: policy.into(),
+        created_at: "2026-01-01T00:00:00Z".into(),
+        git_revision: "test".into(),
+        pipeline_version: "0".into(),
+        mujoco_version: "3.3.7".into(),
+        bundle_format_version: 1,
+        bundles_hash: "none (constructed run)".into(),
+        policy: policy.into(),
+        policy_identity: serde_json::json!({"kind": "constructed"}),
+        num_steps_wait: num_steps_wait as i32,
+        max_steps: Default::default(),
+        stop_on_success: false,
+        substeps_per_step: 25,
+        control_freq_hz: 20,
+    };
+    std::fs::write(dir.join("manifest.json"), serde_json::to_vec(&manifest).unwrap()).unwrap();
+}

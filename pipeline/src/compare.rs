@@ -40,10 +40,10 @@ pub fn run(args: Args) -> Result<()> {
             let scored = scored_rows(location, args.scoring.success, args.scoring.cap).await?;
             ctx.register_table(table, Arc::new(scored))?;
         }
-        ctx.sql(session::queries::COMPARE_PAIRS).await.context("queries/compare_pairs.sql")?.collect().await?;
-        let suites = ctx.sql(session::queries::COMPARE).await.context("queries/compare.sql")?.collect().await?;
+        session::queries::run(&ctx, session::queries::COMPARE_PAIRS).await?;
+        let suites = session::queries::run(&ctx, session::queries::COMPARE).await?;
         let tasks =
-            ctx.sql(session::queries::COMPARE_BY_TASK).await.context("queries/compare_by_task.sql")?.collect().await?;
+            session::queries::run(&ctx, session::queries::COMPARE_BY_TASK).await?;
         let all = overall(&suites);
         if all.n_paired == 0 {
             anyhow::bail!(

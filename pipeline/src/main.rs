@@ -5,6 +5,7 @@
 
 mod bench;
 mod compare;
+mod failures;
 mod media;
 mod published;
 mod results;
@@ -41,6 +42,8 @@ enum Command {
     Run(run::Args),
     /// Per-suite and per-task success rates with Wilson 95% intervals, re-scorable.
     Results(results::Args),
+    /// One primary failure mode per failed episode, and counts per suite (queries/failure_modes.sql).
+    Failures(failures::Args),
     /// Ad-hoc SQL over a run (tables specs, steps, episodes, manifest, scored, published).
     Sql(sql::Args),
     /// Paired comparison of two runs on their common episode keys (McNemar, Newcombe interval).
@@ -51,6 +54,8 @@ enum Command {
     Smoke(smoke::Args),
     /// MP4s of stored episodes, made by replaying their actions (checks determinism).
     Video(video::Args),
+    /// MP4s of the episodes queries/video_selection.sql picks (first failure, one per failure mode).
+    Videos(video::SelectedArgs),
     /// Benchmarks that print figures (e.g. `pipeline bench sim`).
     #[command(subcommand)]
     Bench(bench::Bench),
@@ -63,11 +68,13 @@ fn main() -> anyhow::Result<()> {
         Command::Specs(args) => specs::run(&cli.bundles, args),
         Command::Run(args) => run::run(&cli.bundles, args),
         Command::Results(args) => results::run(args),
+        Command::Failures(args) => failures::run(args),
         Command::Sql(args) => sql::run(args),
         Command::Compare(args) => compare::run(args),
         Command::SampleSize(args) => sample_size::run(args),
         Command::Smoke(args) => smoke::run(&cli.bundles, args),
         Command::Video(args) => video::run(&cli.bundles, args),
+        Command::Videos(args) => video::run_selected(&cli.bundles, args),
         Command::Bench(b) => bench::run(&cli.bundles, b),
     }
 }

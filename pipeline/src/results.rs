@@ -31,8 +31,8 @@ pub fn run(args: Args) -> Result<()> {
         for location in &args.run {
             let (ctx, store) = session::open(location, args.scoring.success, args.scoring.cap).await?;
             let manifest = store.read_manifest().await?.context("the run has no manifest")?;
-            let run_suites = ctx.sql(session::queries::RESULTS).await?.collect().await?;
-            tasks.extend(ctx.sql(session::queries::RESULTS_BY_TASK).await?.collect().await?);
+            let run_suites = session::queries::run(&ctx, session::queries::RESULTS).await?;
+            tasks.extend(session::queries::run(&ctx, session::queries::RESULTS_BY_TASK).await?);
             if let Ok(policy) = manifest.policy.parse::<PolicySpec>() {
                 warnings.push((policy, run_suites.clone()));
             }

@@ -184,7 +184,7 @@ async fn write_manifest(store: &RunStore, m: &RunManifest) -> Result<()> {
 /// After a run: the per-suite table (default scoring) and the baseline check.
 async fn print_results(location: &str, policy: &PolicySpec) -> Result<()> {
     let (ctx, _) = session::open(location, SuccessDefinition::AnyStep, None).await?;
-    let batches = ctx.sql(session::queries::RESULTS).await?.collect().await?;
+    let batches = session::queries::run(&ctx, session::queries::RESULTS).await?;
     println!("{}", arrow::util::pretty::pretty_format_batches(&batches)?);
     crate::results::warn_on_baseline(policy, &batches);
     Ok(())

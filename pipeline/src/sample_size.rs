@@ -40,7 +40,7 @@ pub fn run(args: Args) -> Result<()> {
     if !open(args.alpha) || !open(args.power) || args.tasks == 0 {
         anyhow::bail!("--alpha and --power must lie in (0, 1) and --tasks be at least 1");
     }
-    let sql = session::queries::SAMPLE_SIZE
+    let sql = session::queries::text(session::queries::SAMPLE_SIZE)?
         .replace("{{p0}}", &format!("{:?}", args.p0))
         .replace("{{p1}}", &format!("{p1:?}"))
         .replace("{{alpha}}", &format!("{:?}", args.alpha))

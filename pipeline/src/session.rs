@@ -65,15 +65,97 @@ impl RunScoring {
 }
 
 /// The SQL that derives every reported number, compiled in so the binary runs anywhere; the
-/// files in `queries/` are the source.
+/// files in `queries/` are the source. With `LIBERO_QUERIES=<dir>` the files are read from that
+/// folder instead, so a user's edited selection or threshold takes effect without a rebuild.
 pub mod queries {
-    pub const SCORE: &str = include_str!("../../queries/score.sql");
-    pub const RESULTS: &str = include_str!("../../queries/results.sql");
-    pub const RESULTS_BY_TASK: &str = include_str!("../../queries/results_by_task.sql");
-    pub const COMPARE_PAIRS: &str = include_str!("../../queries/compare_pairs.sql");
-    pub const COMPARE: &str = include_str!("../../queries/compare.sql");
-    pub const COMPARE_BY_TASK: &str = include_str!("../../queries/compare_by_task.sql");
-    pub const SAMPLE_SIZE: &str = include_str!("../../queries/sample_size.sql");
+    use anyhow::{Context, Result};
+
+    pub const SCORE: &str = "score";
+    pub const RESULTS: &str = "results";
+    pub const RESULTS_BY_TASK: &str = "results_by_task";
+    pub const COMPARE_PAIRS: &str = "compare_pairs";
+    pub const COMPARE: &str = "compare";
+    pub const COMPARE_BY_TASK: &str = "compare_by_task";
+    pub const SAMPLE_SIZE: &str = "sample_size";
+    pub const FAILURE_MODES: &str = "failure_modes";
+    pub const FAILURE_SUMMARY: &str = "failure_summary";
+    pub const VIDEO_SELECTION: &str = "video_selection";
+
+    const COMPILED: &[(&str, &str)] = &[
+        (SCORE, include_str!("../../queries/score.sql")),
+        (RESULTS, include_str!("../../queries/results.sql")),
+        (RESULTS_BY_TASK, include_str!("../../queries/results_by_task.sql")),
+        (COMPARE_PAIRS, include_str!("../../queries/compare_pairs.sql")),
+        (COMPARE, include_str!("../../queries/compare.sql")),
+        (COMPARE_BY_TASK, include_str!("../../queries/compare_by_task.sql")),
+        (SAMPLE_SIZE, include_str!("../../queries/sample_size.sql")),
+        (FAILURE_MODES, include_str!("../../queries/failure_modes.sql")),
+        (FAILURE_SUMMARY, include_str!("../../queries/failure_summary.sql")),
+        (VIDEO_SELECTION, include_str!("../../queries/video_selection.sql")),
+    ];
+
+    /// The text of `queries/<name>.sql`: from `$LIBERO_QUERIES` when set, else compiled in.
+    pub fn text(name: &str) -> Result<String> {
+        if let Some(dir) = std::env::var_os("LIBERO_QUERIES") {
+            let path = std::path::Path::new(&dir).join(format!("{name}.sql"));
+            return std::fs::read_to_string(&path)
+                .with_context(|| format!("LIBERO_QUERIES is set but {} cannot be read", path.display()));
+        }
+        COMPILED
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, t)| t.to_string())
+            .with_context(|| format!("no query named {name}"))
+    }
+
+    /// The statements of a query file that holds several (each ends with `;` at the end of a
+    /// line, before any `--` comment), for files that define views one after another.
+    pub fn statements(text: &str) -> Vec<String> {
+        let mut out = vec![];
+        let mut current = String::new();
+        for line in text.lines() {
+            current.push_str(line);
+            current.push('\n');
+            let code = line.split("--").next().unwrap_or("");
+            if code.trim_end().ends_with(';') {
+                out.push(std::mem::take(&mut current));
+            }
+        }
+        if current.lines().any(|l| !l.trim().is_empty() && !l.trim_start().starts_with("--")) {
+            out.push(current);
+        }
+        out
+    }
+
+    /// Run a query file: every statement but the last for its effect (views), the last's batches.
+    pub async fn run(
+        ctx: &datafusion::prelude::SessionContext,
+        name: &str,
+    ) -> Result<Vec<arrow::record_batch::RecordBatch>> {
+        let mut last = vec![];
+        for statement in statements(&text(name)?) {
+            last = ctx
+                .sql(&statement)
+                .await
+                .with_context(|| format!("queries/{name}.sql"))?
+                .collect()
+                .await
+                .with_context(|| format!("queries/{name}.sql"))?;
+        }
+        Ok(last)
+    }
+
+    #[cfg(test)]
+    mod tests {
+        #[test]
+        fn statements_split_at_semicolons_that_end_a_line_outside_comments() {
+            let text = "-- a; comment;\nCREATE VIEW a AS SELECT 1; -- one\nSELECT ';' AS x\nFROM a;\n-- trailing\n";
+            let s = super::statements(text);
+            assert_eq!(s.len(), 2, "{s:?}");
+            assert!(s[0].contains("CREATE VIEW a"));
+            assert!(s[1].starts_with("SELECT"));
+        }
+    }
 }
 
 /// Open a session on the run at `location`, with `scored` defined by `success` and `cap`.
@@ -104,6 +186,8 @@ pub async fn open(location: &str, success: SuccessDefinition, cap: Option<u32>) 
         ctx.register_parquet("manifest", store.table_url("manifest.parquet"), ParquetReadOptions::default()).await?;
     }
     define_scored(&ctx, success, cap).await?;
+    // Views only: nothing is computed until a query reads them.
+    queries::run(&ctx, queries::FAILURE_MODES).await?;
     Ok((ctx, store))
 }
 
@@ -120,9 +204,21 @@ async fn register_listing(
     Ok(())
 }
 
+/// Compute a view once and put its rows in its place, so later queries that read it (a summary,
+/// a selection) do not derive it again; returns the rows.
+pub async fn materialize(ctx: &SessionContext, view: &str) -> Result<Vec<arrow::record_batch::RecordBatch>> {
+    let df = ctx.table(view).await.with_context(|| format!("no view {view}"))?;
+    let schema = Arc::new(df.schema().as_arrow().clone());
+    let batches = df.collect().await.with_context(|| format!("computing {view}"))?;
+    ctx.deregister_table(view)?;
+    let table = datafusion::datasource::MemTable::try_new(schema, vec![batches.clone()])?;
+    ctx.register_table(view, Arc::new(table))?;
+    Ok(batches)
+}
+
 /// (Re)define the `scored` view from `queries/score.sql` with validated parameters.
 pub async fn define_scored(ctx: &SessionContext, success: SuccessDefinition, cap: Option<u32>) -> Result<()> {
-    let sql = queries::SCORE
+    let sql = queries::text(queries::SCORE)?
         .replace("{{success}}", success.sql_name())
         .replace("{{cap}}", &cap.map_or("NULL".to_string(), |c| c.to_string()));
     ctx.sql(&sql).await.context("queries/score.sql")?.collect().await?;

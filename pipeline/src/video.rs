@@ -1,13 +1,17 @@
-//! `pipeline video`: an MP4 of a stored episode, made by replaying its stored actions.
+//! `pipeline video`: an MP4 of a stored episode, made by replaying its stored actions; and
+//! `pipeline videos`: the episodes `queries/video_selection.sql` picks (by default, per suite, the
+//! first failure and the first episode of each failure mode), to `outputs/failures/`.
 //!
 //! No policy is needed: the env is reset to the episode's init state and seed and driven with
 //! the actions of the `steps` table (wait steps included). The replay also proves determinism:
 //! the goal value and the end-effector position after every replayed step must equal the stored
-//! ones (to 1e-9 m), else the command fails and names the first step that differs. The video shows agentview | eye-in-hand under a caption
-//! (instruction, step, goal so far) and ends on a card with the outcome.
+//! ones (to 1e-9 m), else the command fails and names the first step that differs. The video shows agentview | eye-in-hand
+//! under a caption (episode, step, goal so far, final outcome and failure mode, instruction) and
+//! ends on a card with the outcome.
 
 use crate::media::{Mp4Writer, PanelArgs, render_card, render_panel};
-use crate::session::{self, SuccessDefinition};
+use crate::results::write_csv;
+use crate::session::{self, RunScoring, Scoring};
 use anyhow::{Context, Result, bail};
 use arrow::array::{Array, AsArray};
 use arrow::datatypes::{Float32Type, Float64Type, Int32Type, Int64Type};
@@ -28,6 +32,31 @@ pub struct Args {
     /// Output folder; files are named `{suite}_task{i}_init{j}.mp4`.
     #[arg(long, default_value = "outputs/videos")]
     out: PathBuf,
+    /// How the outcome and failure mode on the frames are scored.
+    #[command(flatten)]
+    scoring: Scoring,
+    #[command(flatten)]
+    render: RenderArgs,
+}
+
+/// `pipeline videos`: render what the selection query picks.
+#[derive(clap::Args)]
+pub struct SelectedArgs {
+    #[command(flatten)]
+    scoring: RunScoring,
+    /// Output folder for the MP4s and `selection.csv` (the selected rows, with each file name).
+    #[arg(long, default_value = "outputs/failures")]
+    out: PathBuf,
+    /// Print the selection and render nothing.
+    #[arg(long)]
+    dry_run: bool,
+    #[command(flatten)]
+    render: RenderArgs,
+}
+
+/// How stored episodes are drawn.
+#[derive(clap::Args)]
+pub struct RenderArgs {
     /// Frames per second of the video.
     #[arg(long, default_value_t = 10)]
     fps: u32,
@@ -47,6 +76,8 @@ struct StoredEpisode {
     seed: u64,
     instruction: String,
     success: Option<bool>,
+    /// The primary failure mode (`queries/failure_modes.sql`) under the chosen scoring.
+    failure_mode: Option<String>,
     n_policy_steps: i32,
     error: Option<String>,
     actions: Vec<[f32; 7]>,
@@ -57,11 +88,79 @@ struct StoredEpisode {
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
     let set = BundleSet::open(bundles)?;
-    let episodes = tokio::runtime::Runtime::new()?.block_on(load_episodes(&args.run, &args.episodes))?;
+    let episodes = tokio::runtime::Runtime::new()?.block_on(async {
+        let (ctx, store) = session::open(&args.run, args.scoring.success, args.scoring.cap).await?;
+        load_episodes(&ctx, store.url().as_str(), &args.episodes).await
+    })?;
+    render_all(&set, &episodes, &args.render, &args.out)?;
+    Ok(())
+}
+
+/// `pipeline videos`: run the selection query, render every row it returns, and write
+/// `selection.csv` beside the videos.
+pub fn run_selected(bundles: &Path, args: SelectedArgs) -> Result<()> {
+    let set = BundleSet::open(bundles)?;
+    let (selection, episodes) = tokio::runtime::Runtime::new()?.block_on(async {
+        let (ctx, store) = args.scoring.open().await?;
+        // The selection and the frames read the failure modes: derive them once.
+        session::materialize(&ctx, "failure_modes").await.context("queries/failure_modes.sql")?;
+        let selection = session::queries::run(&ctx, session::queries::VIDEO_SELECTION).await?;
+        let keys: Vec<String> = selection
+            .iter()
+            .flat_map(|b| {
+                let col = b.column_by_name("episode_key").map(|c| c.as_string::<i32>().clone());
+                (0..b.num_rows()).filter_map(move |r| col.as_ref().map(|c| c.value(r).to_string()))
+            })
+            .collect();
+        if selection.iter().any(|b| b.num_rows() > 0) && selection[0].column_by_name("episode_key").is_none() {
+            bail!("queries/video_selection.sql must return an episode_key column");
+        }
+        let episodes = if args.dry_run { vec![] } else { load_episodes(&ctx, store.url().as_str(), &keys).await? };
+        anyhow::Ok((selection, episodes))
+    })?;
+    println!("success definition: {}", args.scoring.scoring.describe());
+    println!("{}", arrow::util::pretty::pretty_format_batches(&selection)?);
+    if args.dry_run {
+        return Ok(());
+    }
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let files: Vec<String> = episodes.iter().map(video_name).collect();
+    let with_files: Vec<arrow::record_batch::RecordBatch> = {
+        let mut names = files.iter();
+        selection
+            .iter()
+            .map(|b| {
+                let col: arrow::array::StringArray = (0..b.num_rows()).map(|_| names.next().cloned()).collect();
+                let mut fields: Vec<_> = b.schema().fields().iter().cloned().collect();
+                fields.push(std::sync::Arc::new(arrow::datatypes::Field::new("video", arrow::datatypes::DataType::Utf8, true)));
+                let mut columns = b.columns().to_vec();
+                columns.push(std::sync::Arc::new(col));
+                arrow::record_batch::RecordBatch::try_new(std::sync::Arc::new(arrow::datatypes::Schema::new(fields)), columns)
+            })
+            .collect::<Result<_, _>>()?
+    };
+    write_csv(&args.out.join("selection.csv"), &with_files)?;
+    if episodes.is_empty() {
+        println!("the selection is empty (no failed episode under this scoring): no video to render");
+    }
+    render_all(&set, &episodes, &args.render, &args.out)?;
+    println!("wrote {}/selection.csv", args.out.display());
+    Ok(())
+}
+
+fn video_name(ep: &StoredEpisode) -> String {
+    format!("{}_task{}_init{}.mp4", ep.suite, ep.task_id, ep.init_state_id)
+}
+
+fn render_all(set: &BundleSet, episodes: &[StoredEpisode], render: &RenderArgs, out: &Path) -> Result<()> {
+    if episodes.is_empty() {
+        return Ok(());
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let gl = Rc::new(GlContext::new()?);
     for ep in episodes {
-        let path = args.out.join(format!("{}_task{}_init{}.mp4", ep.suite, ep.task_id, ep.init_state_id));
-        let frames = replay_to_video(&set, &gl, &ep, &args, &path)?;
+        let path = out.join(video_name(ep));
+        let frames = replay_to_video(set, &gl, ep, render, &path)?;
         println!(
             "{}  ({} frames, replay matched the stored goal and end-effector position of all {} steps)",
             path.display(),
@@ -72,7 +171,17 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     Ok(())
 }
 
-fn replay_to_video(set: &BundleSet, gl: &Rc<GlContext>, ep: &StoredEpisode, args: &Args, path: &Path) -> Result<u64> {
+/// "SUCCESS", "FAILURE · dropped" or "ERROR · error": the outcome the frames announce.
+fn outcome_line(ep: &StoredEpisode) -> String {
+    match (&ep.error, ep.success, &ep.failure_mode) {
+        (Some(_), _, _) => "ERROR".to_string(),
+        (None, Some(true), None) => "SUCCESS".to_string(),
+        (None, _, Some(mode)) => format!("FAILURE - {mode}"),
+        _ => "FAILURE".to_string(),
+    }
+}
+
+fn replay_to_video(set: &BundleSet, gl: &Rc<GlContext>, ep: &StoredEpisode, args: &RenderArgs, path: &Path) -> Result<u64> {
     if args.every == 0 || args.fps == 0 {
         bail!("--every and --fps must be at least 1");
     }
@@ -83,8 +192,15 @@ fn replay_to_video(set: &BundleSet, gl: &Rc<GlContext>, ep: &StoredEpisode, args
     let options = args.panel.options(&layout);
     let mut renderer = env.renderer(gl.clone(), options)?;
     let mut video = Mp4Writer::create(path, layout.width(), layout.height(), args.fps)?;
+    let outcome = outcome_line(ep);
     let caption = |step: usize, goal_seen: bool| {
-        format!("{}  step {step}/{}  goal reached: {}\n{}", ep.key, ep.actions.len(), yes_no(goal_seen), ep.instruction)
+        format!(
+            "{}  step {step}/{}  goal so far: {}\noutcome: {outcome}\n{}",
+            ep.key,
+            ep.actions.len(),
+            yes_no(goal_seen),
+            ep.instruction
+        )
     };
     video.push(&render_panel(&mut env, &mut renderer, &layout, &caption(0, false))?)?;
     let mut goal_seen = false;
@@ -115,19 +231,18 @@ fn replay_to_video(set: &BundleSet, gl: &Rc<GlContext>, ep: &StoredEpisode, args
             video.push(&render_panel(&mut env, &mut renderer, &layout, &caption(i + 1, goal_seen))?)?;
         }
     }
-    let outcome = match (&ep.error, ep.success) {
-        (Some(e), _) => format!("ERROR\n{}", crate::media::wrap(e, 50, 4)),
-        (None, Some(true)) => "SUCCESS".to_string(),
-        _ => "FAILURE".to_string(),
+    let headline = match &ep.error {
+        Some(e) => format!("ERROR\n{}", crate::media::wrap(e, 50, 4)),
+        None => outcome,
     };
     let card = format!(
-        "{outcome}\n\n{}\npolicy steps: {}\nfailure mode: {}\n\n{}",
+        "{headline}\n\n{}\npolicy steps: {}\nfailure mode: {}\n\n{}",
         ep.key,
         ep.n_policy_steps,
-        if ep.success == Some(true) { "-" } else { "not classified yet" },
+        ep.failure_mode.as_deref().unwrap_or("-"),
         crate::media::wrap(&ep.instruction, 50, 3)
     );
-    let background = if ep.success == Some(true) { [0.05, 0.3, 0.1] } else { [0.35, 0.05, 0.05] };
+    let background = if ep.failure_mode.is_none() && ep.error.is_none() { [0.05, 0.3, 0.1] } else { [0.35, 0.05, 0.05] };
     let card = render_card(&mut renderer, layout.width(), layout.height(), &card, background)?;
     for _ in 0..2 * args.fps {
         video.push(&card)?;
@@ -139,8 +254,8 @@ fn yes_no(b: bool) -> &'static str {
     if b { "yes" } else { "no" }
 }
 
-async fn load_episodes(run: &str, keys: &[String]) -> Result<Vec<StoredEpisode>> {
-    let (ctx, store) = session::open(run, SuccessDefinition::AnyStep, None).await?;
+/// The stored episodes `keys` of the run open in `ctx` (`run` names it in errors).
+async fn load_episodes(ctx: &datafusion::prelude::SessionContext, run: &str, keys: &[String]) -> Result<Vec<StoredEpisode>> {
     let mut out = Vec::new();
     for key in keys {
         let quoted = format!("'{}'", key.replace('\'', "''"));
@@ -154,11 +269,20 @@ async fn load_episodes(run: &str, keys: &[String]) -> Result<Vec<StoredEpisode>>
             .await?;
         let Some(b) = rows.iter().find(|b| b.num_rows() > 0) else {
             bail!(
-                "{} has no episode {key:?}; list them with `pipeline sql \"SELECT episode_key FROM episodes\" --run {run}`",
-                store.url()
+                "{run} has no episode {key:?}; list them with `pipeline sql \"SELECT episode_key FROM episodes\" --run {run}`"
             );
         };
         let text = |i: usize| b.column(i).as_string::<i32>().value(0).to_string();
+        let modes = ctx
+            .sql(&format!("SELECT failure_mode FROM failure_modes WHERE episode_key = {quoted}"))
+            .await?
+            .collect()
+            .await
+            .context("queries/failure_modes.sql")?;
+        let failure_mode = modes
+            .iter()
+            .find(|m| m.num_rows() > 0)
+            .map(|m| m.column(0).as_string::<i32>().value(0).to_string());
         let success = b.column(5).as_boolean();
         let error = b.column(7).as_string::<i32>();
         let steps = ctx
@@ -193,6 +317,7 @@ async fn load_episodes(run: &str, keys: &[String]) -> Result<Vec<StoredEpisode>>
             seed: b.column(3).as_primitive::<Int64Type>().value(0) as u64,
             instruction: text(4),
             success: (!success.is_null(0)).then(|| success.value(0)),
+            failure_mode,
             n_policy_steps: b.column(6).as_primitive::<Int32Type>().value(0),
             error: (!error.is_null(0)).then(|| error.value(0).to_string()),
             actions,

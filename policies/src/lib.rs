@@ -25,7 +25,7 @@ pub mod scene;
 mod spec;
 
 pub use baselines::{LiftPolicy, NanAtPolicy, RandomPolicy};
-pub use expert::Expert;
+pub use expert::{Expert, ExpertDrop};
 pub use scene::SceneView;
 pub use spec::PolicySpec;
 

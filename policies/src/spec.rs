@@ -1,6 +1,6 @@
 //! Naming a policy on the command line and recording its identity in the run manifest.
 
-use crate::{Expert, LiftPolicy, NanAtPolicy, Policy, PolicyError, RandomPolicy};
+use crate::{Expert, ExpertDrop, LiftPolicy, NanAtPolicy, Policy, PolicyError, RandomPolicy};
 use std::fmt;
 use std::str::FromStr;
 
@@ -15,6 +15,8 @@ pub enum PolicySpec {
     Expert,
     /// Diagnostic: NaN action at policy step N (exercises error rows).
     NanAt(u32),
+    /// Diagnostic: the expert forced to let go early in its first carry (real `dropped` failures).
+    ExpertDrop,
 }
 
 impl PolicySpec {
@@ -25,6 +27,7 @@ impl PolicySpec {
             PolicySpec::Lift => Box::new(LiftPolicy),
             PolicySpec::Expert => Box::new(Expert::new()),
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
+            PolicySpec::ExpertDrop => Box::new(ExpertDrop::new()),
         })
     }
 
@@ -57,6 +60,11 @@ impl PolicySpec {
             PolicySpec::NanAt(n) => {
                 serde_json::json!({"kind": "diagnostic", "name": "nan-at", "step": n})
             }
+            PolicySpec::ExpertDrop => serde_json::json!({
+                "kind": "diagnostic", "name": "expert-drop", "privileged": true,
+                "forced": "the expert opens its gripper 5 steps into its first carry, then holds still",
+                "chunking": 1,
+            }),
         }
     }
 }
@@ -68,6 +76,7 @@ impl fmt::Display for PolicySpec {
             PolicySpec::Lift => f.write_str("lift"),
             PolicySpec::Expert => f.write_str("expert"),
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
+            PolicySpec::ExpertDrop => f.write_str("expert-drop"),
         }
     }
 }
@@ -79,10 +88,11 @@ impl FromStr for PolicySpec {
             "random" => Ok(PolicySpec::Random),
             "lift" => Ok(PolicySpec::Lift),
             "expert" => Ok(PolicySpec::Expert),
+            "expert-drop" => Ok(PolicySpec::ExpertDrop),
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => {
-                    Err(format!("unknown policy {s:?}; known: random, lift, expert, nan-at:<policy step> (diagnostic)"))
+                    Err(format!("unknown policy {s:?}; known: random, lift, expert; diagnostics: nan-at:<policy step>, expert-drop"))
                 }
             },
         }

@@ -17,7 +17,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, LazyLock};
 
 /// Version of the step/episode/manifest layout; stored in every manifest and part.
-pub const TABLES_VERSION: u32 = 1;
+pub const TABLES_VERSION: u32 = 2;
 /// Arrow field-metadata key holding a field's documentation.
 pub const DOC_KEY: &str = "doc";
 /// Parquet key-value metadata key holding the run manifest (JSON) in every part.
@@ -155,6 +155,12 @@ pub fn episodes() -> SchemaRef {
             ),
             field("final_goal", DataType::Boolean, false, "goal value at the last executed step (last-step evidence)"),
             field("goal_terms", list(DataType::Utf8), false, "BDDL text of each goal term, order of steps.goal_terms"),
+            field(
+                "objects_of_interest",
+                list(DataType::Utf8),
+                true,
+                "objects the failure analysis watches (BDDL :obj_of_interest and the goal's objects, regions replaced by their owner); names as in steps.object_poses. Null in runs written before tables v2",
+            ),
             field(
                 "error_kind",
                 DataType::Utf8,

@@ -259,6 +259,30 @@ pub struct TaskInfo {
     pub model_overrides: BTreeMap<String, BTreeMap<String, Vec<f64>>>,
 }
 
+impl TaskInfo {
+    /// The objects a failure analysis watches, as object names (the names of
+    /// `Observation::object_poses`): the BDDL's `:obj_of_interest` plus every object a goal term
+    /// names, with a region (`wooden_cabinet_1_top_region`) replaced by the object that owns it
+    /// (`wooden_cabinet_1`). Table regions, owned by no object, are left out.
+    pub fn objects_of_interest_resolved(&self) -> Vec<String> {
+        let named = self.objects_of_interest.iter().chain(self.goal.iter().flat_map(|term| term.iter().skip(1)));
+        let mut out: Vec<String> = Vec::new();
+        for name in named {
+            let object = if self.objects.contains_key(name) {
+                Some(name.clone())
+            } else {
+                self.sites.get(name).and_then(|s| s.parent.clone()).filter(|p| self.objects.contains_key(p))
+            };
+            if let Some(o) = object
+                && !out.contains(&o)
+            {
+                out.push(o);
+            }
+        }
+        out
+    }
+}
+
 /// A rigid pose; `quat` is MuJoCo's (w, x, y, z).
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 pub struct Pose {

@@ -61,6 +61,8 @@ pub struct EpisodeSummary {
     pub first_success_step: Option<u32>,
     pub final_goal: bool,
     pub goal_terms: Vec<String>,
+    /// Object names the failure analysis watches ([`libero_sim::bundle::TaskInfo::objects_of_interest_resolved`]).
+    pub objects_of_interest: Vec<String>,
     pub error: Option<EpisodeError>,
     pub wall_s: f64,
     pub sim_s: f64,
@@ -80,6 +82,7 @@ impl EpisodeSummary {
             first_success_step: None,
             final_goal: false,
             goal_terms: vec![],
+            objects_of_interest: vec![],
             error: Some(error),
             wall_s: 0.0,
             sim_s: 0.0,
@@ -106,6 +109,7 @@ pub fn run_episode(
         first_success_step: None,
         final_goal: false,
         goal_terms: env.goal_terms().to_vec(),
+        objects_of_interest: env.bundle().task.objects_of_interest_resolved(),
         error: None,
         wall_s: 0.0,
         sim_s: 0.0,
@@ -222,7 +226,11 @@ pub fn episode_batch(
 ) -> anyhow::Result<RecordBatch> {
     let terms = StringArray::from(s.goal_terms.clone());
     let item = Arc::new(Field::new("item", DataType::Utf8, false));
-    let goal_terms = ListArray::try_new(item, OffsetBuffer::from_lengths([s.goal_terms.len()]), Arc::new(terms), None)?;
+    let goal_terms =
+        ListArray::try_new(item.clone(), OffsetBuffer::from_lengths([s.goal_terms.len()]), Arc::new(terms), None)?;
+    let interest = StringArray::from(s.objects_of_interest.clone());
+    let objects_of_interest =
+        ListArray::try_new(item, OffsetBuffer::from_lengths([s.objects_of_interest.len()]), Arc::new(interest), None)?;
     let mut columns: Vec<ArrayRef> = vec![
         Arc::new(StringArray::from(vec![key.episode_key.as_str()])),
         Arc::new(StringArray::from(vec![key.suite.as_str()])),
@@ -240,6 +248,7 @@ pub fn episode_batch(
         Arc::new(Int32Array::from(vec![s.first_success_step.map(|x| x as i32)])),
         Arc::new(BooleanArray::from(vec![s.final_goal])),
         Arc::new(goal_terms),
+        Arc::new(objects_of_interest),
         Arc::new(StringArray::from(vec![s.error.as_ref().map(|e| e.kind)])),
         Arc::new(StringArray::from(vec![s.error.as_ref().map(|e| e.message.as_str())])),
         Arc::new(Float64Array::from(vec![s.wall_s])),

@@ -244,6 +244,53 @@ impl Policy for Expert {
     }
 }
 
+/// Carry steps after which [`ExpertDrop`] lets go: the object is then well clear of the table.
+const FORCED_RELEASE_AFTER_CARRY_STEPS: u32 = 5;
+
+/// Diagnostic (`--policy expert-drop`): the expert, forced to open its gripper a few steps into
+/// its first carry and then to hold still. Its episodes are real drops (an object of interest
+/// lifted and let fall away from its goal), which the failure-mode analysis must call `dropped`.
+#[derive(Debug, Default)]
+pub struct ExpertDrop {
+    expert: Expert,
+    released: bool,
+}
+
+impl ExpertDrop {
+    pub fn new() -> Self {
+        ExpertDrop { expert: Expert::new(), released: false }
+    }
+
+    fn carrying(&self) -> bool {
+        matches!(self.expert.plan.get(self.expert.current), Some((Skill::Place { .. }, _)))
+            && self.expert.state.phase == pick_place::CARRY
+            && self.expert.state.phase_steps >= FORCED_RELEASE_AFTER_CARRY_STEPS
+    }
+}
+
+impl Policy for ExpertDrop {
+    fn reset(&mut self, instruction: &str, episode_seed: u64) {
+        self.expert.reset(instruction, episode_seed);
+        self.released = false;
+    }
+
+    fn wants_scene(&self) -> bool {
+        true
+    }
+
+    fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
+        if self.released {
+            return Ok(hold_still());
+        }
+        let a = self.expert.act(obs)?;
+        if self.carrying() {
+            self.released = true;
+            return Ok(hold_still());
+        }
+        Ok(a)
+    }
+}
+
 /// Open gripper, no motion.
 fn hold_still() -> Action {
     [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]

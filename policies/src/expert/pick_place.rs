@@ -14,7 +14,8 @@ const APPROACH: u8 = 0;
 const DESCEND: u8 = 1;
 const CLOSE: u8 = 2;
 const LIFT: u8 = 3;
-const CARRY: u8 = 4;
+/// Carrying the held object over to its target (read by [`super::ExpertDrop`]).
+pub(super) const CARRY: u8 = 4;
 const LOWER: u8 = 5;
 const RELEASE: u8 = 6;
 const RETREAT: u8 = 7;

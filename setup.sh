@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # One-command set-up on a fresh machine (Debian 12 image + package registries), idempotent and fast
 # when already done:
-#   1. Debian packages (EGL/Mesa for headless rendering, ffmpeg, a font) when run as root;
+#   1. Debian packages (EGL/Mesa for headless rendering, ffmpeg, a font, Chromium for the report's
+#      browser test) when run as root;
 #   2. MuJoCo 3.3.7 library + headers from the PyPI wheel (third_party/, for mujoco-rs 2.3.5);
 #   2b. libtorch 2.11.0 (for tch 0.24.0) from the PyPI torch wheel, cached, linked as third_party/libtorch;
 #   3. the Python reference LIBERO env (the oracle) in a cached venv, linked as .venv, and the notebook's
@@ -28,7 +29,7 @@ t0=$(date +%s)
 step() { echo "==> $* ($(( $(date +%s) - t0 )) s)"; }
 
 step "Debian packages"
-PKGS="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libgles2 libosmesa6 ffmpeg fonts-dejavu-core unzip"
+PKGS="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libgles2 libosmesa6 ffmpeg fonts-dejavu-core unzip chromium"
 if ! dpkg -s $PKGS >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ]; then
     apt-get update -qq
@@ -119,5 +120,7 @@ if [ "$BUILD" = 1 ]; then
   "$P" results --run outputs/smoke/random --run outputs/smoke/lift --run outputs/smoke/expert --out outputs/smoke
   step "smoke pictures: outputs/smoke/<suite>.png (agentview | eye-in-hand, task 0, init 0)"
   "$P" smoke --out outputs/smoke
+  step "report: outputs/report.html (the expert's failures as videos, the baselines beside it)"
+  "$P" report --run outputs/smoke/expert --run outputs/smoke/random --run outputs/smoke/lift --videos --out outputs >/dev/null
 fi
 step "set-up done: bundles in data/bundles -> $BUNDLES"

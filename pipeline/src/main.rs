@@ -8,6 +8,7 @@ mod compare;
 mod failures;
 mod media;
 mod published;
+mod report;
 mod results;
 mod run;
 mod sample_size;
@@ -44,6 +45,8 @@ enum Command {
     Results(results::Args),
     /// One primary failure mode per failed episode, and counts per suite (queries/failure_modes.sql).
     Failures(failures::Args),
+    /// results.csv, per-task and failure tables and a self-contained report.html for one or more runs.
+    Report(report::Args),
     /// Ad-hoc SQL over a run (tables specs, steps, episodes, manifest, scored, published).
     Sql(sql::Args),
     /// Paired comparison of two runs on their common episode keys (McNemar, Newcombe interval).
@@ -69,6 +72,7 @@ fn main() -> anyhow::Result<()> {
         Command::Run(args) => run::run(&cli.bundles, args),
         Command::Results(args) => results::run(args),
         Command::Failures(args) => failures::run(args),
+        Command::Report(args) => report::run(&cli.bundles, args),
         Command::Sql(args) => sql::run(args),
         Command::Compare(args) => compare::run(args),
         Command::SampleSize(args) => sample_size::run(args),

@@ -35,6 +35,13 @@ pub struct PanelArgs {
     preview: bool,
 }
 
+impl Default for PanelArgs {
+    /// What the command line gives when no option is named.
+    fn default() -> Self {
+        PanelArgs { size: DEFAULT_SIZE, look: Look::default(), preview: false }
+    }
+}
+
 impl PanelArgs {
     /// [`CAMERAS`] side by side under a 4-line caption.
     pub fn layout(&self) -> PanelLayout {

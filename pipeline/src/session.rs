@@ -80,6 +80,7 @@ pub mod queries {
     pub const FAILURE_MODES: &str = "failure_modes";
     pub const FAILURE_SUMMARY: &str = "failure_summary";
     pub const VIDEO_SELECTION: &str = "video_selection";
+    pub const PUBLISHED_COMPARISON: &str = "published_comparison";
 
     const COMPILED: &[(&str, &str)] = &[
         (SCORE, include_str!("../../queries/score.sql")),
@@ -92,6 +93,7 @@ pub mod queries {
         (FAILURE_MODES, include_str!("../../queries/failure_modes.sql")),
         (FAILURE_SUMMARY, include_str!("../../queries/failure_summary.sql")),
         (VIDEO_SELECTION, include_str!("../../queries/video_selection.sql")),
+        (PUBLISHED_COMPARISON, include_str!("../../queries/published_comparison.sql")),
     ];
 
     /// The text of `queries/<name>.sql`: from `$LIBERO_QUERIES` when set, else compiled in.

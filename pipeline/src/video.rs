@@ -10,6 +10,10 @@
 //! ends on a card with the outcome.
 
 use crate::media::{Mp4Writer, PanelArgs, render_card, render_panel};
+use arrow::array::StringArray;
+use arrow::datatypes::{DataType, Field, Schema};
+use arrow::record_batch::RecordBatch;
+use std::sync::Arc;
 use crate::results::write_csv;
 use crate::session::{self, RunScoring, Scoring};
 use anyhow::{Context, Result, bail};
@@ -99,53 +103,79 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
 /// `pipeline videos`: run the selection query, render every row it returns, and write
 /// `selection.csv` beside the videos.
 pub fn run_selected(bundles: &Path, args: SelectedArgs) -> Result<()> {
+    if args.dry_run {
+        let selection = tokio::runtime::Runtime::new()?.block_on(async {
+            let (ctx, _) = args.scoring.open().await?;
+            session::materialize(&ctx, "failure_modes").await.context("queries/failure_modes.sql")?;
+            session::queries::run(&ctx, session::queries::VIDEO_SELECTION).await
+        })?;
+        println!("success definition: {}", args.scoring.scoring.describe());
+        println!("{}", arrow::util::pretty::pretty_format_batches(&selection)?);
+        return Ok(());
+    }
+    let selection = render_selection_with(bundles, &args.scoring.run, args.scoring.scoring, &args.out, &args.render)?;
+    println!("success definition: {}", args.scoring.scoring.describe());
+    println!("{}", arrow::util::pretty::pretty_format_batches(&selection)?);
+    println!("wrote {0}/selection.csv and {0}/videos.json", args.out.display());
+    Ok(())
+}
+
+/// Render the episodes the selection query picks from `run` into `out` (default drawing).
+pub fn render_selection(bundles: &Path, run: &str, scoring: Scoring, out: &Path) -> Result<Vec<RecordBatch>> {
+    let render = RenderArgs { fps: 10, every: 2, panel: PanelArgs::default() };
+    render_selection_with(bundles, run, scoring, out, &render)
+}
+
+/// Run the selection, render its rows, and write `selection.csv` (the rows, with each video's
+/// file name) and `videos.json` (the files and the run configuration they were made from, which
+/// the report checks before it shows a video as this run's).
+fn render_selection_with(
+    bundles: &Path,
+    run: &str,
+    scoring: Scoring,
+    out: &Path,
+    render: &RenderArgs,
+) -> Result<Vec<RecordBatch>> {
     let set = BundleSet::open(bundles)?;
-    let (selection, episodes) = tokio::runtime::Runtime::new()?.block_on(async {
-        let (ctx, store) = args.scoring.open().await?;
+    let (selection, episodes, run_config) = tokio::runtime::Runtime::new()?.block_on(async {
+        let (ctx, store) = session::open(run, scoring.success, scoring.cap).await?;
+        let run_config = store.read_manifest().await?.context("the run has no manifest")?.run_config;
         // The selection and the frames read the failure modes: derive them once.
         session::materialize(&ctx, "failure_modes").await.context("queries/failure_modes.sql")?;
         let selection = session::queries::run(&ctx, session::queries::VIDEO_SELECTION).await?;
-        let keys: Vec<String> = selection
-            .iter()
-            .flat_map(|b| {
-                let col = b.column_by_name("episode_key").map(|c| c.as_string::<i32>().clone());
-                (0..b.num_rows()).filter_map(move |r| col.as_ref().map(|c| c.value(r).to_string()))
-            })
-            .collect();
-        if selection.iter().any(|b| b.num_rows() > 0) && selection[0].column_by_name("episode_key").is_none() {
-            bail!("queries/video_selection.sql must return an episode_key column");
+        let mut keys = vec![];
+        for b in &selection {
+            let col = b
+                .column_by_name("episode_key")
+                .context("queries/video_selection.sql must return an episode_key column")?
+                .as_string::<i32>();
+            keys.extend((0..b.num_rows()).map(|r| col.value(r).to_string()));
         }
-        let episodes = if args.dry_run { vec![] } else { load_episodes(&ctx, store.url().as_str(), &keys).await? };
-        anyhow::Ok((selection, episodes))
+        let episodes = load_episodes(&ctx, store.url().as_str(), &keys).await?;
+        anyhow::Ok((selection, episodes, run_config))
     })?;
-    println!("success definition: {}", args.scoring.scoring.describe());
-    println!("{}", arrow::util::pretty::pretty_format_batches(&selection)?);
-    if args.dry_run {
-        return Ok(());
-    }
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let files: Vec<String> = episodes.iter().map(video_name).collect();
-    let with_files: Vec<arrow::record_batch::RecordBatch> = {
-        let mut names = files.iter();
-        selection
-            .iter()
-            .map(|b| {
-                let col: arrow::array::StringArray = (0..b.num_rows()).map(|_| names.next().cloned()).collect();
-                let mut fields: Vec<_> = b.schema().fields().iter().cloned().collect();
-                fields.push(std::sync::Arc::new(arrow::datatypes::Field::new("video", arrow::datatypes::DataType::Utf8, true)));
-                let mut columns = b.columns().to_vec();
-                columns.push(std::sync::Arc::new(col));
-                arrow::record_batch::RecordBatch::try_new(std::sync::Arc::new(arrow::datatypes::Schema::new(fields)), columns)
-            })
-            .collect::<Result<_, _>>()?
-    };
-    write_csv(&args.out.join("selection.csv"), &with_files)?;
+    let mut names = files.iter();
+    let with_files = selection
+        .iter()
+        .map(|b| {
+            let col: StringArray = (0..b.num_rows()).map(|_| names.next().cloned()).collect();
+            let mut fields: Vec<_> = b.schema().fields().iter().cloned().collect();
+            fields.push(Arc::new(Field::new("video", DataType::Utf8, true)));
+            let mut columns = b.columns().to_vec();
+            columns.push(Arc::new(col));
+            RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    write_csv(&out.join("selection.csv"), &with_files)?;
     if episodes.is_empty() {
         println!("the selection is empty (no failed episode under this scoring): no video to render");
     }
-    render_all(&set, &episodes, &args.render, &args.out)?;
-    println!("wrote {}/selection.csv", args.out.display());
-    Ok(())
+    render_all(&set, &episodes, render, out)?;
+    let index = serde_json::json!({"run": run, "run_config": run_config, "videos": files});
+    std::fs::write(out.join("videos.json"), serde_json::to_vec_pretty(&index)?)?;
+    Ok(with_files)
 }
 
 fn video_name(ep: &StoredEpisode) -> String {

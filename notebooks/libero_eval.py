@@ -521,9 +521,10 @@ plt.show()
 #
 # The brief replays the first failed episode of each suite into an MP4. Here the steps of every
 # episode are stored, so the failure can be read before it is watched: which goal terms ever
-# held, what the gripper touched, how the hand moved. `pipeline failures` (when your build has
-# it) classifies every failed episode (`outputs/failure_modes.csv`: timeout, wrong object,
-# dropped, ...), and `pipeline video` renders any episode by replaying its stored actions.
+# held, what the gripper touched, how the hand moved. `pipeline failures` classifies every failed
+# episode (`outputs/failure_modes.csv`: timeout, wrong_object, dropped, ...; definitions in
+# `queries/failure_modes.sql`), `pipeline videos` renders the ones `queries/video_selection.sql`
+# picks, and `pipeline video` renders any episode, all by replaying the stored actions.
 
 # %%
 failed = E.filter(~pl.col("any_step"))
@@ -594,7 +595,8 @@ for ep in chosen.iter_rows(named=True):
 # %%
 videos = sorted((OUTPUTS / "failures").glob("*.mp4"))
 if not videos:
-    print(f"failure videos: absent ({OUTPUTS / 'failures'}/*.mp4); make them with the `pipeline video` lines above")
+    print(f"failure videos: absent ({OUTPUTS / 'failures'}/*.mp4); make the selected ones with "
+          f"`pipeline videos --run {RUN} --out {OUTPUTS / 'failures'}` (queries/video_selection.sql), or one with a line above")
 for v in videos:
     print(f"{v.name}  {v.stat().st_size / 1e6:.1f} MB")
     display(Video(os.path.relpath(v, Path.cwd()), embed=False, width=512))

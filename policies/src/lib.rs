@@ -21,6 +21,7 @@
 
 mod baselines;
 mod expert;
+pub mod remote;
 pub mod scene;
 mod spec;
 

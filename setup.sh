@@ -57,6 +57,11 @@ NB_VENV="$CACHE/nb-venv-$(sha256sum scripts/setup/notebook_venv.sh | cut -c1-12)
 bash scripts/setup/notebook_venv.sh "$NB_VENV"
 ln -sfn "$NB_VENV" .nb-venv
 
+step "remote-policy venv (openpi-client, websockets: the toy openpi server of the remote-policy test)"
+REMOTE_VENV="$CACHE/remote-venv-$(sha256sum scripts/setup/remote_policy_venv.sh | cut -c1-12)"
+bash scripts/setup/remote_policy_venv.sh "$REMOTE_VENV"
+ln -sfn "$REMOTE_VENV" .remote-venv
+
 step "task bundles ($SUITES)"
 BUNDLE_KEY=$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py scripts/reference/libero_ref.py | sha256sum | cut -c1-12)
 BUNDLES="$CACHE/bundles-$BUNDLE_KEY"

@@ -21,6 +21,8 @@
 
 mod baselines;
 mod expert;
+pub mod postprocess;
+pub mod preprocess;
 pub mod remote;
 pub mod scene;
 mod spec;

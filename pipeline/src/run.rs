@@ -66,7 +66,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         bundle_format_version: libero_schema::bundle_format::BUNDLE_FORMAT_VERSION,
         bundles_hash: bundles_hash(&set)?,
         policy: args.policy.name(),
-        policy_identity: args.policy.identity(),
+        policy_identity: args.policy.resolve_identity()?,
         num_steps_wait: args.wait_steps as i32,
         max_steps: max_steps.iter().map(|(s, n)| (s.name().to_string(), *n as i32)).collect(),
         stop_on_success: args.stop_on_success,

@@ -20,6 +20,7 @@
 //! ```
 
 mod baselines;
+pub mod chunking;
 mod expert;
 pub mod postprocess;
 pub mod preprocess;
@@ -38,13 +39,38 @@ pub struct Observation {
     /// Policy step index from 0 (wait steps are not shown to the policy).
     pub policy_step: u32,
     pub eef_pos: [f64; 3],
-    /// (w, x, y, z)
+    /// (w, x, y, z) of the grip site frame (what the scripted expert steers).
     pub eef_quat: [f64; 4],
+    /// (w, x, y, z) of the hand body: robosuite's `obs["robot0_eef_quat"]` (in x, y, z, w there),
+    /// the quaternion the published loops turn into the proprio state's axis-angle.
+    pub hand_quat: [f64; 4],
     pub gripper_qpos: [f64; 2],
     pub joint_pos: [f64; 7],
     pub joint_vel: [f64; 7],
     /// Privileged simulator state, only for policies that ask for it ([`Policy::wants_scene`]).
     pub scene: Option<SceneView>,
+    /// The two cameras, only for policies that ask for them ([`Policy::camera_size`]).
+    pub images: Option<CameraImages>,
+}
+
+/// A camera image as the reference env returns it (`obs["agentview_image"]`): RGB bytes, 3 per
+/// pixel, rows in OpenGL order (row 0 at the bottom, so it looks upside down). A policy's own
+/// preprocessing turns it into what its model was trained on; the published OpenVLA and openpi
+/// loops rotate it by 180° (`img[::-1, ::-1]`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CameraImage {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<u8>,
+}
+
+/// LIBERO's two cameras, rendered after the step the policy is about to answer.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CameraImages {
+    /// `agentview`: the third-person camera.
+    pub agentview: CameraImage,
+    /// `robot0_eye_in_hand`: the wrist camera.
+    pub wrist: CameraImage,
 }
 
 /// A 7-dim env action: delta eef position (3), delta axis-angle (3), gripper (-1 open … +1 close).
@@ -68,5 +94,12 @@ pub trait Policy: Send {
     /// only; a learned policy must never see it).
     fn wants_scene(&self) -> bool {
         false
+    }
+    /// The camera images this policy needs for its next `act`, as a square size in pixels (the
+    /// published loops render 256×256 and resize to 224); `None`: no images. Asked before every
+    /// policy step, so a chunked policy that still has queued actions answers `None` and the
+    /// rollout skips the render (a camera pair costs far more than a physics step on a CPU).
+    fn camera_size(&self) -> Option<u32> {
+        None
     }
 }

@@ -1,5 +1,6 @@
 //! Naming a policy on the command line and recording its identity in the run manifest.
 
+use crate::remote::openpi::{LIBERO_REPLAN_STEPS, OpenpiConfig, OpenpiPolicy};
 use crate::{Expert, ExpertDrop, LiftPolicy, NanAtPolicy, Policy, PolicyError, RandomPolicy};
 use std::fmt;
 use std::str::FromStr;
@@ -17,6 +18,8 @@ pub enum PolicySpec {
     NanAt(u32),
     /// Diagnostic: the expert forced to let go early in its first carry (real `dropped` failures).
     ExpertDrop,
+    /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`).
+    Openpi { url: String, replan_steps: usize },
 }
 
 impl PolicySpec {
@@ -28,6 +31,10 @@ impl PolicySpec {
             PolicySpec::Expert => Box::new(Expert::new()),
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
             PolicySpec::ExpertDrop => Box::new(ExpertDrop::new()),
+            PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
+                replan_steps: *replan_steps,
+                ..OpenpiConfig::new(url.clone())
+            })?),
         })
     }
 
@@ -39,6 +46,19 @@ impl PolicySpec {
     /// Baselines are expected to fail; results warn when one scores above 5%.
     pub fn is_baseline(&self) -> bool {
         matches!(self, PolicySpec::Random | PolicySpec::Lift)
+    }
+
+    /// The identity for the run manifest, asking the policy itself where only it knows (a remote
+    /// server's metadata): a server that cannot be reached fails the run before any episode.
+    pub fn resolve_identity(&self) -> Result<serde_json::Value, PolicyError> {
+        match self {
+            PolicySpec::Openpi { url, replan_steps } => Ok(OpenpiPolicy::connect(OpenpiConfig {
+                replan_steps: *replan_steps,
+                ..OpenpiConfig::new(url.clone())
+            })?
+            .identity()),
+            _ => Ok(self.identity()),
+        }
     }
 
     /// Identity for the manifest: what a reader needs to know which policy produced the steps
@@ -60,6 +80,10 @@ impl PolicySpec {
             PolicySpec::NanAt(n) => {
                 serde_json::json!({"kind": "diagnostic", "name": "nan-at", "step": n})
             }
+            PolicySpec::Openpi { url, replan_steps } => serde_json::json!({
+                "kind": "remote", "name": "openpi", "url": url, "replan_steps": replan_steps,
+                "server_metadata": "read at run start (resolve_identity)",
+            }),
             PolicySpec::ExpertDrop => serde_json::json!({
                 "kind": "diagnostic", "name": "expert-drop", "privileged": true,
                 "forced": "the expert opens its gripper 5 steps into its first carry, then holds still",
@@ -77,6 +101,8 @@ impl fmt::Display for PolicySpec {
             PolicySpec::Expert => f.write_str("expert"),
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
             PolicySpec::ExpertDrop => f.write_str("expert-drop"),
+            PolicySpec::Openpi { url, replan_steps } if *replan_steps == LIBERO_REPLAN_STEPS => write!(f, "openpi:{url}"),
+            PolicySpec::Openpi { url, replan_steps } => write!(f, "openpi:{url}?replan={replan_steps}"),
         }
     }
 }
@@ -89,12 +115,46 @@ impl FromStr for PolicySpec {
             "lift" => Ok(PolicySpec::Lift),
             "expert" => Ok(PolicySpec::Expert),
             "expert-drop" => Ok(PolicySpec::ExpertDrop),
+            _ if s.starts_with("openpi:") => parse_openpi(&s["openpi:".len()..]),
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => {
-                    Err(format!("unknown policy {s:?}; known: random, lift, expert; diagnostics: nan-at:<policy step>, expert-drop"))
+                    Err(format!("unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N]; diagnostics: nan-at:<policy step>, expert-drop"))
                 }
             },
         }
+    }
+}
+
+/// `ws://host:port[?replan=N]` of `openpi:...`.
+fn parse_openpi(rest: &str) -> Result<PolicySpec, String> {
+    let (url, query) = rest.split_once('?').map_or((rest, None), |(u, q)| (u, Some(q)));
+    if !url.starts_with("ws://") {
+        return Err(format!("openpi:{rest}: the server address must be a ws:// URL, e.g. openpi:ws://localhost:8000"));
+    }
+    let replan_steps = match query {
+        None => LIBERO_REPLAN_STEPS,
+        Some(q) => match q.strip_prefix("replan=").map(str::parse::<usize>) {
+            Some(Ok(n)) if n >= 1 => n,
+            _ => return Err(format!("openpi:{rest}: the only option is ?replan=N with N >= 1 (actions executed per chunk)")),
+        },
+    };
+    Ok(PolicySpec::Openpi { url: url.to_string(), replan_steps })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn openpi_specs_parse_and_print_back() {
+        let p: PolicySpec = "openpi:ws://localhost:8000".parse().unwrap();
+        assert_eq!(p, PolicySpec::Openpi { url: "ws://localhost:8000".into(), replan_steps: 5 });
+        assert_eq!(p.to_string(), "openpi:ws://localhost:8000");
+        let p: PolicySpec = "openpi:ws://h:1?replan=10".parse().unwrap();
+        assert_eq!(p.to_string(), "openpi:ws://h:1?replan=10");
+        assert!("openpi:http://h:1".parse::<PolicySpec>().unwrap_err().contains("ws://"));
+        assert!("openpi:ws://h:1?replan=0".parse::<PolicySpec>().unwrap_err().contains("replan=N"));
+        assert!("nope".parse::<PolicySpec>().unwrap_err().contains("openpi:ws://"));
     }
 }

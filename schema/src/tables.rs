@@ -165,7 +165,7 @@ pub fn episodes() -> SchemaRef {
                 "error_kind",
                 DataType::Utf8,
                 true,
-                "null when the episode ran to its end; else sim_unstable, invalid_action, policy, bundle or internal",
+                "null when the episode ran to its end; else sim_unstable, invalid_action, policy, bundle, render (the cameras of a policy that sees) or internal",
             ),
             field("error", DataType::Utf8, true, "the error message, null when none"),
             field("wall_s", DataType::Float64, false, "episode wall time, reset to last step (s)"),

@@ -22,6 +22,7 @@ Faults, by request number n (1-based, counted over all connections of the server
   --delay-at N --delay-s S     sleep S seconds before answering request N
   --drop-at N                  abort the TCP connection instead of answering request N
   --error-at N                 the policy raises on request N (text traceback + close 1011)
+  --require-images             fail (like a real pi0) unless both 224x224 images are sent
   --bad-reply-at N --bad-reply {no-actions,garbage,wrong-shape}
                                answer request N with a malformed reply
 
@@ -39,8 +40,13 @@ import websockets.asyncio.server as _server
 import websockets.frames
 
 
-def toy_actions(obs: dict, chunk: int) -> np.ndarray:
+def toy_actions(obs: dict, chunk: int, require_images: bool = False) -> np.ndarray:
     state = obs["observation/state"]
+    if require_images:
+        for key in ("observation/image", "observation/wrist_image"):
+            im = obs.get(key)
+            if not (isinstance(im, np.ndarray) and im.shape == (224, 224, 3)):
+                raise TypeError(f"{key} must be a 224x224x3 image, got {getattr(im, 'shape', im)}")
     prompt = obs["prompt"]
     if not (isinstance(state, np.ndarray) and state.dtype == np.float64 and state.shape == (8,)):
         raise TypeError(f"observation/state must be float64 (8,), got {type(state)} {getattr(state, 'dtype', None)} {getattr(state, 'shape', None)}")
@@ -89,7 +95,7 @@ class ToyServer:
                 start = time.monotonic()
                 if n == a.error_at:
                     raise RuntimeError(f"toy policy failure at request {n}")
-                reply = {"actions": toy_actions(obs, a.chunk), "echo": {"prompt": obs["prompt"], "keys": sorted(obs)}}
+                reply = {"actions": toy_actions(obs, a.chunk, a.require_images), "echo": {"prompt": obs["prompt"], "keys": sorted(obs)}}
                 reply["server_timing"] = {"infer_ms": (time.monotonic() - start) * 1000}
                 await websocket.send(packer.pack(reply))
             except websockets.ConnectionClosed:
@@ -117,6 +123,7 @@ def main():
     p.add_argument("--delay-s", type=float, default=0.0)
     p.add_argument("--drop-at", type=int, default=0)
     p.add_argument("--error-at", type=int, default=0)
+    p.add_argument("--require-images", action="store_true")
     p.add_argument("--bad-reply-at", type=int, default=0)
     p.add_argument("--bad-reply", choices=["no-actions", "garbage", "wrong-shape"], default="garbage")
     asyncio.run(ToyServer(p.parse_args()).run())

@@ -7,6 +7,7 @@
 //! here the default is to run to the cap so that last-step scoring stays possible, and
 //! `success` (any policy step within the cap) equals the published first-success latch either way.
 
+use crate::policy_cameras::PolicyCameras;
 use crate::scene_view::SceneReader;
 use crate::steps_batch::{EpisodeKey, StepRecord, StepsBatchBuilder};
 use arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, RecordBatch, StringArray};
@@ -47,6 +48,7 @@ impl EpisodeError {
             | SimError::Compile { .. }
             | SimError::InitStateOutOfRange { .. }
             | SimError::UnknownSeed { .. } => "bundle",
+            SimError::NoGl { .. } | SimError::RenderSize { .. } | SimError::UnknownCamera { .. } => "render",
             _ => "internal",
         };
         EpisodeError { kind, message: e.to_string() }
@@ -131,6 +133,8 @@ pub fn run_episode(
             return (steps, summary);
         }
     };
+    // Cameras only for policies that see, set up on the first step that asks.
+    let mut cameras: Option<PolicyCameras> = None;
     // The state after step t is what the policy sees before step t+1: read it once per step.
     let mut obs = env.observation();
     let mut contacts = env.gripper_contacts();
@@ -141,14 +145,26 @@ pub fn run_episode(
         let action: [f32; 7] = match policy_step {
             None => WAIT_ACTION,
             Some(p) => {
+                let images = match policy.camera_size() {
+                    None => None,
+                    Some(size) => match capture(&mut cameras, env, size) {
+                        Ok(images) => Some(images),
+                        Err(e) => {
+                            summary.error = Some(EpisodeError::from_sim(&e));
+                            break;
+                        }
+                    },
+                };
                 let input = Observation {
                     policy_step: p,
                     eef_pos: obs.eef_pos,
                     eef_quat: obs.eef_quat,
+                    hand_quat: obs.hand_quat,
                     gripper_qpos: obs.gripper_qpos,
                     joint_pos: obs.joint_pos,
                     joint_vel: obs.joint_vel,
                     scene: scene.as_ref().map(|r| r.read(env, &goal, &contacts)),
+                    images,
                 };
                 let t0 = Instant::now();
                 let a = policy.act(&input);
@@ -206,6 +222,19 @@ pub fn run_episode(
     }
     summary.wall_s = t_start.elapsed().as_secs_f64();
     (steps, summary)
+}
+
+/// Both camera images of the env's current state at `size`, (re)making the renderer when the
+/// size changes.
+fn capture(
+    cameras: &mut Option<PolicyCameras>,
+    env: &mut LiberoEnv,
+    size: u32,
+) -> Result<libero_policies::CameraImages, SimError> {
+    if cameras.as_ref().is_none_or(|c| c.size() != size) {
+        *cameras = Some(PolicyCameras::new(env, size)?);
+    }
+    cameras.as_mut().expect("just made").capture(env)
 }
 
 /// Run identity stored in every episode row.

@@ -10,13 +10,16 @@
 //!   `newcombe_paired_lo` / `newcombe_paired_hi(n11, n10, n01, n00 [, level])`;
 //! - [`sample_size`]: `sample_size_two_proportions(p1, p2 [, alpha [, power]])`;
 //! - [`run_store`]: the layout of a run on an object store (parts, manifest, resume);
-//! - [`steps_batch`] / [`episode`]: building the Arrow rows of one episode.
+//! - [`steps_batch`] / [`episode`]: building the Arrow rows of one episode;
+//! - [`scene_view`] / [`policy_cameras`]: what a policy may see besides proprio: the privileged
+//!   scene (scripted experts) and the two cameras (learned policies).
 //!
 //! The only crate besides `pipeline` that joins `sim` and `policies`.
 
 pub mod episode;
 pub mod mcnemar;
 pub mod newcombe;
+pub mod policy_cameras;
 pub mod rollout;
 pub mod run_store;
 pub mod sample_size;

@@ -91,27 +91,39 @@ pub struct OpenpiImages {
 }
 
 /// robosuite's `quat2axisangle` (the copy in openpi's `examples/libero/main.py`), for our
-/// (w, x, y, z) quaternion: w clipped to [-1, 1]; zero rotation when `sqrt(1 - w²)` is 0; no
-/// sign canonicalisation (a negative w gives an angle above π, as there).
+/// (w, x, y, z) quaternion: [`crate::preprocess::quat2axisangle`] after reordering; no sign
+/// canonicalisation (a negative w gives an angle above π, as there).
 pub fn quat2axisangle(quat_wxyz: [f64; 4]) -> [f64; 3] {
-    let [w, x, y, z] = quat_wxyz;
-    let w = w.clamp(-1.0, 1.0);
-    let den = (1.0 - w * w).sqrt();
-    if den == 0.0 {
-        return [0.0; 3];
-    }
-    let k = 2.0 * w.acos() / den;
-    [x * k, y * k, z * k]
+    crate::preprocess::quat2axisangle(crate::preprocess::proprio::wxyz_to_xyzw(quat_wxyz))
 }
 
-/// `"observation/state"`: eef position (3), eef orientation as axis-angle (3), the two gripper
-/// finger joints (2), float64 as robosuite's observations are.
+/// `"observation/state"`: eef position (3), the hand body's orientation as axis-angle (3), the
+/// two gripper finger joints (2), float64 as robosuite's observations are. The orientation is
+/// [`Observation::hand_quat`], robosuite's `robot0_eef_quat` (MuJoCo's `xquat` of the hand, used
+/// as given, as openpi's example uses it).
 pub fn libero_state(obs: &Observation) -> [f64; 8] {
-    let aa = quat2axisangle(obs.eef_quat);
-    let [p0, p1, p2] = obs.eef_pos;
-    let [g0, g1] = obs.gripper_qpos;
-    [p0, p1, p2, aa[0], aa[1], aa[2], g0, g1]
+    crate::preprocess::libero_state(
+        obs.eef_pos,
+        crate::preprocess::proprio::wxyz_to_xyzw(obs.hand_quat),
+        obs.gripper_qpos,
+        crate::preprocess::QuatSign::AsGiven,
+    )
 }
+
+/// The request's images from the rendered cameras: openpi's LIBERO preprocessing
+/// ([`crate::preprocess::ImagePipeline::OPENPI`]: rot180, `resize_with_pad` 224, Pillow bilinear).
+pub fn openpi_images(cams: &crate::CameraImages) -> Result<OpenpiImages, PolicyError> {
+    let prep = |c: &crate::CameraImage| -> Result<RgbImage, PolicyError> {
+        let img = crate::preprocess::RgbImage::new(c.width, c.height, c.rgb.clone())
+            .and_then(|i| crate::preprocess::ImagePipeline::OPENPI.apply(&i))
+            .map_err(|e| error(format!("image preprocessing: {e}")))?;
+        Ok(RgbImage { height: img.height, width: img.width, rgb: img.rgb })
+    };
+    Ok(OpenpiImages { image: prep(&cams.agentview)?, wrist_image: prep(&cams.wrist)? })
+}
+
+/// Camera renders openpi's LIBERO example takes (`LIBERO_ENV_RESOLUTION`).
+pub const LIBERO_RENDER_SIZE: u32 = 256;
 
 fn image_value(img: &RgbImage) -> Value {
     NdArray::from_u8(&[img.height as usize, img.width as usize, 3], img.rgb.clone()).to_value()
@@ -221,9 +233,13 @@ impl OpenpiPolicy {
             "server_metadata": self.metadata,
             "request": {
                 "keys": [KEY_IMAGE, KEY_WRIST_IMAGE, KEY_STATE, KEY_PROMPT],
-                "state": "float64 (8,): eef_pos (3), quat2axisangle(eef_quat) (3), gripper_qpos (2)",
+                "state": "float64 (8,): eef_pos (3), quat2axisangle(robot0_eef_quat = hand body xquat, as given) (3), gripper_qpos (2)",
                 "prompt": "the task's language instruction",
-                "images": null,
+                "images": {
+                    "cameras": ["agentview", "robot0_eye_in_hand"],
+                    "render": format!("{LIBERO_RENDER_SIZE}x{LIBERO_RENDER_SIZE}, look mujoco-3.2.3"),
+                    "preprocessing": crate::preprocess::ImagePipeline::OPENPI.describe(),
+                },
             },
             "chunking": { "predicted": predicted, "executed": self.config.replan_steps },
             "replan_steps": self.config.replan_steps,
@@ -282,8 +298,17 @@ impl Policy for OpenpiPolicy {
         self.queries = 0;
     }
 
+    /// Renders only when a request is due: the queued actions of a chunk need none.
+    fn camera_size(&self) -> Option<u32> {
+        self.needs_query().then_some(LIBERO_RENDER_SIZE)
+    }
+
     fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
-        self.act_with_images(obs, None)
+        let images = match (&obs.images, self.needs_query()) {
+            (Some(cams), true) => Some(openpi_images(cams)?),
+            _ => None,
+        };
+        self.act_with_images(obs, images.as_ref())
     }
 }
 
@@ -323,7 +348,7 @@ mod tests {
     fn the_request_has_the_libero_example_keys_and_types() {
         let obs = Observation {
             eef_pos: [0.1, 0.2, 0.3],
-            eef_quat: [0.0, 1.0, 0.0, 0.0],
+            hand_quat: [0.0, 1.0, 0.0, 0.0],
             gripper_qpos: [0.04, -0.04],
             ..Default::default()
         };

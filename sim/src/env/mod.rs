@@ -71,7 +71,15 @@ pub struct Observation {
     pub joint_vel: [f64; ARM_DOF],
     /// Root-body pose of every object and fixture, in `object_names()` order.
     pub object_poses: Vec<Pose>,
+    /// Orientation (w, x, y, z) of the hand body `robot0_right_hand`: robosuite's
+    /// `obs["robot0_eef_quat"]` (MuJoCo's `xquat`, sign included), from which the published loops
+    /// build the proprio state's axis-angle. Not `eef_quat`, the grip site's frame, which is
+    /// turned ~90° about z from it.
+    pub hand_quat: [f64; 4],
 }
+
+/// robosuite's Panda hand body (`robot_model.eef_name` = `right_hand`, prefixed `robot0_`).
+const HAND_BODY: &str = "robot0_right_hand";
 
 pub struct LiberoEnv {
     // Field order matters: `data` borrows `model` through a raw pointer and must drop first.
@@ -86,6 +94,8 @@ pub struct LiberoEnv {
     /// `Some` between reset and the first substep: robosuite's stale controller cache.
     stale: Option<ArmState>,
     eef_site: usize,
+    /// The hand body (`robot0_right_hand`), whose quaternion is robosuite's `robot0_eef_quat`.
+    hand_body: usize,
     qpos_index: [usize; ARM_DOF],
     qvel_index: [usize; ARM_DOF],
     arm_actuators: [usize; ARM_DOF],
@@ -157,6 +167,7 @@ impl LiberoEnv {
         let arm_ctrlrange = arm_actuators.map(|a| ctrlrange[a]);
         let gripper_ctrlrange = gripper_actuators.map(|a| ctrlrange[a]);
         let eef_site = object_id(&model, MjtObj::mjOBJ_SITE, &c.eef_site, "site")?;
+        let hand_body = object_id(&model, MjtObj::mjOBJ_BODY, HAND_BODY, "body")?;
         // The finger joints are the gripper actuators' transmission targets.
         let trnid = model.actuator_trnid();
         let jnt_qposadr = model.jnt_qposadr();
@@ -192,6 +203,7 @@ impl LiberoEnv {
             reset_snapshot,
             stale: None,
             eef_site,
+            hand_body,
             qpos_index,
             qvel_index,
             arm_actuators,
@@ -410,6 +422,7 @@ impl LiberoEnv {
                 .iter()
                 .map(|&(_, b)| Pose { pos: d.xpos()[b], quat: d.xquat()[b] })
                 .collect(),
+            hand_quat: d.xquat()[self.hand_body],
         }
     }
 

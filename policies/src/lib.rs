@@ -26,6 +26,8 @@ pub mod postprocess;
 pub mod preprocess;
 pub mod remote;
 pub mod scene;
+#[cfg(feature = "torch")]
+pub mod torchscript;
 mod spec;
 
 pub use baselines::{LiftPolicy, NanAtPolicy, RandomPolicy};

@@ -18,6 +18,8 @@ pub enum PolicySpec {
     NanAt(u32),
     /// Diagnostic: the expert forced to let go early in its first carry (real `dropped` failures).
     ExpertDrop,
+    /// A TorchScript module with its `model.json` manifest (`torchscript:<file>`).
+    TorchScript(std::path::PathBuf),
     /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`).
     Openpi { url: String, replan_steps: usize },
 }
@@ -31,6 +33,7 @@ impl PolicySpec {
             PolicySpec::Expert => Box::new(Expert::new()),
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
             PolicySpec::ExpertDrop => Box::new(ExpertDrop::new()),
+            PolicySpec::TorchScript(file) => load_torchscript(file)?,
             PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
                 replan_steps: *replan_steps,
                 ..OpenpiConfig::new(url.clone())
@@ -57,6 +60,8 @@ impl PolicySpec {
                 ..OpenpiConfig::new(url.clone())
             })?
             .identity()),
+            #[cfg(feature = "torch")]
+            PolicySpec::TorchScript(file) => Ok(crate::torchscript::TorchScriptPolicy::load(file)?.identity()),
             _ => Ok(self.identity()),
         }
     }
@@ -80,6 +85,10 @@ impl PolicySpec {
             PolicySpec::NanAt(n) => {
                 serde_json::json!({"kind": "diagnostic", "name": "nan-at", "step": n})
             }
+            PolicySpec::TorchScript(file) => serde_json::json!({
+                "kind": "torchscript", "file": file.display().to_string(),
+                "sha256": "read at run start (resolve_identity)",
+            }),
             PolicySpec::Openpi { url, replan_steps } => serde_json::json!({
                 "kind": "remote", "name": "openpi", "url": url, "replan_steps": replan_steps,
                 "server_metadata": "read at run start (resolve_identity)",
@@ -101,6 +110,7 @@ impl fmt::Display for PolicySpec {
             PolicySpec::Expert => f.write_str("expert"),
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
             PolicySpec::ExpertDrop => f.write_str("expert-drop"),
+            PolicySpec::TorchScript(file) => write!(f, "torchscript:{}", file.display()),
             PolicySpec::Openpi { url, replan_steps } if *replan_steps == LIBERO_REPLAN_STEPS => write!(f, "openpi:{url}"),
             PolicySpec::Openpi { url, replan_steps } => write!(f, "openpi:{url}?replan={replan_steps}"),
         }
@@ -116,14 +126,27 @@ impl FromStr for PolicySpec {
             "expert" => Ok(PolicySpec::Expert),
             "expert-drop" => Ok(PolicySpec::ExpertDrop),
             _ if s.starts_with("openpi:") => parse_openpi(&s["openpi:".len()..]),
+            _ if s.starts_with("torchscript:") && s.len() > "torchscript:".len() => {
+                Ok(PolicySpec::TorchScript(s["torchscript:".len()..].into()))
+            }
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => {
-                    Err(format!("unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N]; diagnostics: nan-at:<policy step>, expert-drop"))
+                    Err(format!("unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], torchscript:<model.pt>; diagnostics: nan-at:<policy step>, expert-drop"))
                 }
             },
         }
     }
+}
+
+#[cfg(feature = "torch")]
+fn load_torchscript(file: &std::path::Path) -> Result<Box<dyn Policy>, PolicyError> {
+    Ok(Box::new(crate::torchscript::TorchScriptPolicy::load(file)?))
+}
+
+#[cfg(not(feature = "torch"))]
+fn load_torchscript(_: &std::path::Path) -> Result<Box<dyn Policy>, PolicyError> {
+    Err(PolicyError { policy: "torchscript".into(), detail: "this build has no libtorch (built without the `torch` feature)".into() })
 }
 
 /// `ws://host:port[?replan=N]` of `openpi:...`.

@@ -1,0 +1,279 @@
+//! Any PyTorch policy exported as TorchScript (`torch.jit.script` / `torch.jit.trace`), run
+//! in-process through libtorch (`tch::CModule`): `--policy torchscript:model.pt`.
+//!
+//! Beside the file, `model.json` says what the module expects and what its outputs mean:
+//!
+//! ```json
+//! {
+//!   "inputs": ["agentview", "wrist", "state"],
+//!   "image_size": 224,
+//!   "render_size": 256,
+//!   "preprocessing": "openvla",
+//!   "chunk_size": 8,
+//!   "replan_steps": 8,
+//!   "dataset_statistics": {"libero_spatial_no_noops": {"action": {"q01": [...], "q99": [...], "mask": [...]}}},
+//!   "unnorm_key": "libero_spatial_no_noops",
+//!   "gripper": "openvla"
+//! }
+//! ```
+//!
+//! - `inputs`: the forward's arguments in order. `agentview` / `wrist`: float32 `[1, 3, H, W]` in
+//!   [0, 1] after `preprocessing`; `state`: float32 `[1, 8]`, LIBERO's proprio state (eef
+//!   position, axis-angle of robosuite's `robot0_eef_quat`, finger joints).
+//! - `preprocessing`: `openvla` / `openpi` ([`ImagePipeline`] presets, to 224) or `rot180` (only
+//!   the published loops' 180° rotation; the cameras are then rendered at `image_size`).
+//! - The output: float `[1, chunk, 7]` or `[1, 7]`, normalised to [-1, 1] when
+//!   `dataset_statistics` is given (un-normalised with `unnorm_key`, OpenVLA's q01/q99 with the
+//!   mask), else already in env units. `gripper`: `openvla` ([0, 1] → sign → inverted) or `as_is`.
+//! - `replan_steps` of each chunk are executed before the module runs again ([`ActionChunker`]).
+
+use crate::chunking::ActionChunker;
+use crate::postprocess::{ActionStats, Gripper, NormStats, postprocess_action};
+use crate::preprocess::{ImagePipeline, QuatSign, RgbImage, libero_state, proprio::wxyz_to_xyzw};
+use crate::{Action, CameraImage, Observation, Policy, PolicyError};
+use serde_json::Value;
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+use tch::{CModule, Device, Kind, Tensor};
+
+const NAME: &str = "torchscript";
+
+/// One forward argument.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Input {
+    Agentview,
+    Wrist,
+    State,
+}
+
+/// `model.json`, checked.
+#[derive(Debug, Clone)]
+pub struct TorchScriptManifest {
+    inputs: Vec<Input>,
+    image_size: u32,
+    render_size: u32,
+    preprocessing: (String, ImagePipeline),
+    chunk_size: usize,
+    replan_steps: usize,
+    stats: Option<(String, ActionStats)>,
+    gripper: (String, Gripper),
+    raw: Value,
+}
+
+fn err(detail: impl Into<String>) -> PolicyError {
+    PolicyError { policy: NAME.into(), detail: detail.into() }
+}
+
+impl TorchScriptManifest {
+    /// The manifest of `model` (`model.pt` → `model.json`).
+    pub fn path_for(model: &Path) -> PathBuf {
+        model.with_extension("json")
+    }
+
+    pub fn parse(text: &str, source: &Path) -> Result<Self, PolicyError> {
+        let bad = |what: String| err(format!("{}: {what}", source.display()));
+        let v: Value = serde_json::from_str(text).map_err(|e| bad(format!("not JSON: {e}")))?;
+        let uint = |key: &str, default: Option<u64>| -> Result<u64, PolicyError> {
+            match v.get(key) {
+                Some(x) => x.as_u64().filter(|&n| n > 0).ok_or_else(|| bad(format!("{key} must be a positive integer"))),
+                None => default.ok_or_else(|| bad(format!("{key} is missing"))),
+            }
+        };
+        let inputs = v
+            .get("inputs")
+            .and_then(Value::as_array)
+            .ok_or_else(|| bad("inputs must list the forward's arguments, e.g. [\"agentview\", \"wrist\", \"state\"]".into()))?
+            .iter()
+            .map(|x| match x.as_str() {
+                Some("agentview") => Ok(Input::Agentview),
+                Some("wrist") => Ok(Input::Wrist),
+                Some("state") => Ok(Input::State),
+                _ => Err(bad(format!("unknown input {x}; known: agentview, wrist, state"))),
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        if inputs.is_empty() {
+            return Err(bad("inputs is empty".into()));
+        }
+        let image_size = uint("image_size", Some(224))? as u32;
+        let name = v.get("preprocessing").and_then(Value::as_str).unwrap_or("rot180").to_string();
+        let (pipeline, default_render) = match name.as_str() {
+            "openvla" => (ImagePipeline::OPENVLA, 256),
+            "openpi" => (ImagePipeline::OPENPI, 256),
+            "rot180" => (
+                ImagePipeline {
+                    rotate_180: true,
+                    jpeg_quality: None,
+                    resize: crate::preprocess::Resize::None,
+                    center_crop: None,
+                },
+                image_size as u64,
+            ),
+            other => return Err(bad(format!("unknown preprocessing {other:?}; known: openvla, openpi, rot180"))),
+        };
+        if name != "rot180" && image_size != 224 {
+            return Err(bad(format!("preprocessing {name} gives 224x224 images, but image_size is {image_size}")));
+        }
+        let render_size = uint("render_size", Some(default_render))? as u32;
+        if name == "rot180" && render_size != image_size {
+            return Err(bad("preprocessing rot180 does not resize: render_size must equal image_size".into()));
+        }
+        let chunk_size = uint("chunk_size", Some(1))? as usize;
+        let replan_steps = uint("replan_steps", Some(chunk_size as u64))? as usize;
+        let stats = match v.get("dataset_statistics") {
+            None | Some(Value::Null) => None,
+            Some(s) => {
+                let stats = NormStats::from_value(s).map_err(|e| bad(e.to_string()))?;
+                let key = v.get("unnorm_key").and_then(Value::as_str);
+                let action = stats.action(key).map_err(|e| bad(e.to_string()))?.clone();
+                let key = key.map(str::to_string).unwrap_or_else(|| stats.keys().concat());
+                Some((key, action))
+            }
+        };
+        let gripper_name = v.get("gripper").and_then(Value::as_str).unwrap_or("as_is").to_string();
+        let gripper = match gripper_name.as_str() {
+            "openvla" => Gripper::OPENVLA,
+            "as_is" => Gripper::AS_IS,
+            other => return Err(bad(format!("unknown gripper {other:?}; known: openvla, as_is"))),
+        };
+        Ok(TorchScriptManifest {
+            inputs,
+            image_size,
+            render_size,
+            preprocessing: (name, pipeline),
+            chunk_size,
+            replan_steps,
+            stats,
+            gripper: (gripper_name, gripper),
+            raw: v,
+        })
+    }
+
+    fn needs_images(&self) -> bool {
+        self.inputs.iter().any(|i| *i != Input::State)
+    }
+}
+
+/// A TorchScript module and its manifest (`--policy torchscript:<file>`).
+pub struct TorchScriptPolicy {
+    module: CModule,
+    manifest: TorchScriptManifest,
+    chunker: ActionChunker,
+    device: Device,
+    file: PathBuf,
+    sha256: String,
+}
+
+impl TorchScriptPolicy {
+    /// Load `file` and its manifest, on the GPU when there is one.
+    pub fn load(file: &Path) -> Result<Self, PolicyError> {
+        let manifest_path = TorchScriptManifest::path_for(file);
+        let text = std::fs::read_to_string(&manifest_path).map_err(|e| {
+            err(format!("{}: {e}; a TorchScript policy needs its manifest beside it (see policies::torchscript)", manifest_path.display()))
+        })?;
+        let manifest = TorchScriptManifest::parse(&text, &manifest_path)?;
+        let bytes = std::fs::read(file).map_err(|e| err(format!("{}: {e}", file.display())))?;
+        let sha256 = format!("{:x}", Sha256::digest(&bytes));
+        let device = Device::cuda_if_available();
+        let mut module = CModule::load_on_device(file, device)
+            .map_err(|e| err(format!("{} is not a TorchScript module libtorch 2.11 can load: {e}", file.display())))?;
+        module.set_eval();
+        let chunker = ActionChunker::new(manifest.replan_steps);
+        Ok(TorchScriptPolicy { module, manifest, chunker, device, file: file.to_path_buf(), sha256 })
+    }
+
+    /// Identity for the run manifest: the file's hash, its manifest, preprocessing and chunking.
+    pub fn identity(&self) -> Value {
+        let m = &self.manifest;
+        serde_json::json!({
+            "kind": "torchscript", "name": NAME,
+            "file": self.file.display().to_string(), "sha256": self.sha256,
+            "inputs": m.raw.get("inputs"),
+            "images": if m.needs_images() {
+                serde_json::json!({"render": format!("{0}x{0}, look mujoco-3.2.3", m.render_size),
+                                   "preprocessing": format!("{}: {}", m.preprocessing.0, m.preprocessing.1.describe())})
+            } else { Value::Null },
+            "state": "float32 (8,): eef_pos (3), quat2axisangle(robot0_eef_quat as given) (3), gripper_qpos (2)",
+            "chunking": {"predicted": m.chunk_size, "executed": m.replan_steps},
+            "unnorm_key": m.stats.as_ref().map(|(k, _)| k.clone()),
+            "gripper": m.gripper.0,
+            "device": format!("{:?}", self.device),
+        })
+    }
+
+    /// Model queries since the episode started.
+    pub fn queries(&self) -> u64 {
+        self.chunker.queries()
+    }
+
+    fn image_tensor(&self, cam: &CameraImage) -> Result<Tensor, PolicyError> {
+        let img = RgbImage::new(cam.width, cam.height, cam.rgb.clone())
+            .and_then(|i| self.manifest.preprocessing.1.apply(&i))
+            .map_err(|e| err(format!("image preprocessing: {e}")))?;
+        let size = self.manifest.image_size;
+        if (img.width, img.height) != (size, size) {
+            return Err(err(format!("preprocessing gave {}x{} images, the manifest's image_size is {size}", img.width, img.height)));
+        }
+        let (h, w) = (img.height as i64, img.width as i64);
+        Ok(Tensor::from_slice(&img.rgb)
+            .reshape([h, w, 3])
+            .permute([2, 0, 1])
+            .to_kind(Kind::Float)
+            .divide_scalar(255.0)
+            .unsqueeze(0)
+            .to_device(self.device))
+    }
+
+    /// Run the module once: the predicted chunk, in env units.
+    fn predict(&self, obs: &Observation) -> Result<Vec<Action>, PolicyError> {
+        let m = &self.manifest;
+        let mut args = Vec::with_capacity(m.inputs.len());
+        for input in &m.inputs {
+            args.push(match input {
+                Input::State => {
+                    let s = libero_state(obs.eef_pos, wxyz_to_xyzw(obs.hand_quat), obs.gripper_qpos, QuatSign::AsGiven);
+                    Tensor::from_slice(&s.map(|x| x as f32)).unsqueeze(0).to_device(self.device)
+                }
+                Input::Agentview | Input::Wrist => {
+                    let images = obs.images.as_ref().ok_or_else(|| err("the rollout gave no camera images"))?;
+                    self.image_tensor(if *input == Input::Agentview { &images.agentview } else { &images.wrist })?
+                }
+            });
+        }
+        let out = tch::no_grad(|| self.module.forward_ts(&args)).map_err(|e| err(format!("forward: {e}")))?;
+        let out = out.to_device(Device::Cpu).to_kind(Kind::Double);
+        let chunk = match out.size().as_slice() {
+            [1, n, 7] => out.reshape([*n, 7]),
+            [1, 7] => out.reshape([1, 7]),
+            other => return Err(err(format!("the module returned shape {other:?}; expected [1, chunk, 7] or [1, 7]"))),
+        };
+        let rows: Vec<Vec<f64>> = Vec::<Vec<f64>>::try_from(&chunk).map_err(|e| err(format!("reading the output: {e}")))?;
+        rows.iter()
+            .map(|r| match &m.stats {
+                Some((_, stats)) => postprocess_action(r, stats, m.gripper.1).map_err(|e| err(e.to_string())),
+                None => {
+                    let mut a: Action = std::array::from_fn(|i| r[i] as f32);
+                    a[6] = m.gripper.1.apply(r[6]) as f32;
+                    Ok(a)
+                }
+            })
+            .collect()
+    }
+}
+
+impl Policy for TorchScriptPolicy {
+    fn reset(&mut self, _instruction: &str, _episode_seed: u64) {
+        self.chunker.reset();
+    }
+
+    fn camera_size(&self) -> Option<u32> {
+        (self.manifest.needs_images() && self.chunker.needs_query()).then_some(self.manifest.render_size)
+    }
+
+    fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
+        if self.chunker.needs_query() {
+            let chunk = self.predict(obs)?;
+            self.chunker.push_chunk(chunk).map_err(err)?;
+        }
+        self.chunker.next_action().ok_or_else(|| err("no action queued"))
+    }
+}

@@ -20,6 +20,7 @@
 //! ```
 
 mod baselines;
+pub mod batching;
 pub mod chunking;
 mod expert;
 pub mod postprocess;

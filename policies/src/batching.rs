@@ -1,0 +1,185 @@
+//! One forward for several episodes: dynamic batching of the rollout workers' queries.
+//!
+//! The rollout runs episodes in parallel, one per worker thread, each calling its policy's `act`
+//! synchronously. A model on a GPU wants those queries together: [`Batcher`] owns one
+//! [`BatchModel`] on its own thread; every worker's [`BatchedPolicy`] sends its query and waits;
+//! the batcher answers whatever is pending (up to `max_batch`, waiting at most `max_wait` for
+//! more once one has arrived) with one `predict_batch` call, and routes each chunk back to its
+//! worker. With N workers the batch is up to N episodes, and an episode's actions are the same as
+//! with a batch of one (a batch changes the arithmetic only where the model's kernels do).
+
+use crate::chunking::ActionChunker;
+use crate::{Action, Observation, Policy, PolicyError};
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+/// A model that predicts an action chunk for each of several (instruction, observation) pairs
+/// in one call.
+pub trait BatchModel: Send + 'static {
+    /// One chunk per request, in the requests' order.
+    fn predict_batch(&mut self, requests: &[(String, Observation)]) -> Vec<Result<Vec<Action>, String>>;
+    /// Camera size the model needs (`None`: proprio only).
+    fn camera_size(&self) -> Option<u32> {
+        None
+    }
+}
+
+type Reply = Sender<Result<Vec<Action>, String>>;
+
+/// Batch sizes the batcher has run, for tests and benchmarks.
+#[derive(Debug, Default, Clone)]
+pub struct BatchStats {
+    pub batches: Vec<usize>,
+}
+
+/// The thread that owns the model and answers batches.
+pub struct Batcher {
+    queue: Mutex<Sender<(String, Observation, Reply)>>,
+    camera_size: Option<u32>,
+    stats: Arc<Mutex<BatchStats>>,
+}
+
+impl Batcher {
+    /// Start the batching thread for `model`.
+    pub fn start(mut model: impl BatchModel, max_batch: usize, max_wait: Duration) -> Arc<Batcher> {
+        let (tx, rx): (Sender<(String, Observation, Reply)>, Receiver<_>) = channel();
+        let stats = Arc::new(Mutex::new(BatchStats::default()));
+        let camera_size = model.camera_size();
+        let thread_stats = stats.clone();
+        std::thread::spawn(move || {
+            // Ends when every sender (every policy and the batcher itself) is gone.
+            while let Ok(first) = rx.recv() {
+                let mut pending = vec![first];
+                let deadline = std::time::Instant::now() + max_wait;
+                while pending.len() < max_batch.max(1) {
+                    let left = deadline.saturating_duration_since(std::time::Instant::now());
+                    match rx.recv_timeout(left) {
+                        Ok(r) => pending.push(r),
+                        Err(_) => break,
+                    }
+                }
+                let requests: Vec<(String, Observation)> =
+                    pending.iter().map(|(i, o, _)| (i.clone(), o.clone())).collect();
+                let mut answers = model.predict_batch(&requests);
+                answers.resize_with(pending.len(), || Err("the model returned fewer answers than requests".into()));
+                thread_stats.lock().expect("stats").batches.push(pending.len());
+                for ((_, _, reply), answer) in pending.into_iter().zip(answers) {
+                    let _ = reply.send(answer);
+                }
+            }
+        });
+        Arc::new(Batcher { queue: Mutex::new(tx), camera_size, stats })
+    }
+
+    pub fn stats(&self) -> BatchStats {
+        self.stats.lock().expect("stats").clone()
+    }
+
+    fn ask(&self, instruction: &str, obs: &Observation) -> Result<Vec<Action>, String> {
+        let (tx, rx) = channel();
+        self.queue
+            .lock()
+            .map_err(|_| "the batcher's queue is poisoned".to_string())?
+            .send((instruction.to_string(), obs.clone(), tx))
+            .map_err(|_| "the batching thread has stopped".to_string())?;
+        rx.recv().map_err(|_| "the batching thread dropped the request".to_string())?
+    }
+}
+
+/// One worker's view of a shared [`Batcher`]: a [`Policy`] that executes `replan_steps` of each
+/// chunk the batch answers.
+pub struct BatchedPolicy {
+    batcher: Arc<Batcher>,
+    chunker: ActionChunker,
+    instruction: String,
+    name: String,
+}
+
+impl BatchedPolicy {
+    pub fn new(batcher: Arc<Batcher>, replan_steps: usize, name: &str) -> Self {
+        BatchedPolicy { batcher, chunker: ActionChunker::new(replan_steps), instruction: String::new(), name: name.into() }
+    }
+}
+
+impl Policy for BatchedPolicy {
+    fn reset(&mut self, instruction: &str, _episode_seed: u64) {
+        self.instruction = instruction.to_string();
+        self.chunker.reset();
+    }
+
+    fn camera_size(&self) -> Option<u32> {
+        self.batcher.camera_size.filter(|_| self.chunker.needs_query())
+    }
+
+    fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
+        let err = |detail: String| PolicyError { policy: self.name.clone(), detail };
+        if self.chunker.needs_query() {
+            let chunk = self.batcher.ask(&self.instruction, obs).map_err(err)?;
+            self.chunker.push_chunk(chunk).map_err(err)?;
+        }
+        self.chunker.next_action().ok_or_else(|| err("no action queued".into()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Barrier;
+
+    /// Echoes each request's eef x and the batch size, so routing and batching are visible.
+    struct Echo;
+    impl BatchModel for Echo {
+        fn predict_batch(&mut self, requests: &[(String, Observation)]) -> Vec<Result<Vec<Action>, String>> {
+            let n = requests.len() as f32;
+            requests
+                .iter()
+                .map(|(i, o)| {
+                    if i == "fail" {
+                        return Err("refused".into());
+                    }
+                    Ok((0..4).map(|k| [o.eef_pos[0] as f32, k as f32, n, 0.0, 0.0, 0.0, -1.0]).collect())
+                })
+                .collect()
+        }
+    }
+
+    #[test]
+    fn concurrent_workers_share_one_forward_and_get_their_own_answers() {
+        let batcher = Batcher::start(Echo, 8, Duration::from_millis(200));
+        let workers = 6;
+        let barrier = Arc::new(Barrier::new(workers));
+        let handles: Vec<_> = (0..workers)
+            .map(|w| {
+                let (batcher, barrier) = (batcher.clone(), barrier.clone());
+                std::thread::spawn(move || {
+                    let mut p = BatchedPolicy::new(batcher, 2, "echo");
+                    p.reset("task", 0);
+                    let obs = Observation { eef_pos: [w as f64, 0.0, 0.0], ..Default::default() };
+                    barrier.wait();
+                    (0..4).map(|_| p.act(&obs).unwrap()).collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        for (w, h) in handles.into_iter().enumerate() {
+            let actions = h.join().unwrap();
+            // Its own eef x; replan 2 of a chunk of 4: positions 0, 1, then a new chunk's 0, 1.
+            assert!(actions.iter().all(|a| a[0] == w as f32), "worker {w}: {actions:?}");
+            assert_eq!(actions.iter().map(|a| a[1]).collect::<Vec<_>>(), [0.0, 1.0, 0.0, 1.0]);
+        }
+        let stats = batcher.stats();
+        assert_eq!(stats.batches.iter().sum::<usize>(), 2 * workers, "{stats:?}");
+        assert!(stats.batches.iter().any(|&b| b > 1), "no two queries shared a forward: {stats:?}");
+    }
+
+    #[test]
+    fn a_refused_request_is_that_workers_error_only() {
+        let batcher = Batcher::start(Echo, 4, Duration::from_millis(1));
+        let mut bad = BatchedPolicy::new(batcher.clone(), 1, "echo");
+        bad.reset("fail", 0);
+        assert!(bad.act(&Observation::default()).unwrap_err().to_string().contains("refused"));
+        let mut good = BatchedPolicy::new(batcher, 1, "echo");
+        good.reset("ok", 0);
+        assert!(good.act(&Observation::default()).is_ok());
+    }
+}

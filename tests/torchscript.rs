@@ -24,7 +24,9 @@ fn a_torchscript_policy_runs_through_the_pipeline_on_rendered_cameras() {
     // Small motions from what it sees: 0.1·(mean(agentview) − mean(wrist)) per component, then
     // + 0.01 per chunk position, so chunks are visible in the stored actions.
     CModule::create_by_tracing("Toy", "forward", &inputs, &mut |x| {
-        let base = (x[0].mean(Kind::Float) - x[1].mean(Kind::Float)) * 0.1 + x[2].narrow(1, 0, 7) * 0.0;
+        // per sample (a batch of episodes must not mix): means over channels and pixels only
+        let mean = |t: &Tensor| t.mean_dim([1i64, 2, 3].as_slice(), false, Kind::Float).unsqueeze(1);
+        let base = (mean(&x[0]) - mean(&x[1])) * 0.1 + x[2].narrow(1, 0, 7) * 0.0;
         let steps = Tensor::arange(4, (Kind::Float, Device::Cpu)).reshape([1, 4, 1]) * 0.01;
         vec![base.unsqueeze(1) + steps]
     })
@@ -57,4 +59,57 @@ fn a_torchscript_policy_runs_through_the_pipeline_on_rendered_cameras() {
     // The second chunk saw other images (the arm moved), so it starts elsewhere.
     assert!((a[4] - a[3] - 0.01).abs() > 1e-7, "{a:?}");
     assert!(a.iter().all(|x| x.abs() < 0.2), "{a:?}");
+}
+
+/// The same module with `?batch=4` and 4 workers: the workers' queries share forwards, each
+/// episode gets its own answers, and the actions equal those of one episode per forward.
+#[test]
+fn batched_forwards_give_each_episode_the_actions_of_an_unbatched_run() {
+    let d = test_dir("torchscript", "batch");
+    let file = d.join("model.pt");
+    let inputs = [
+        Tensor::rand([1, 3, 32, 32], (Kind::Float, Device::Cpu)),
+        Tensor::rand([1, 3, 32, 32], (Kind::Float, Device::Cpu)),
+        Tensor::rand([1, 8], (Kind::Float, Device::Cpu)),
+    ];
+    CModule::create_by_tracing("Toy", "forward", &inputs, &mut |x| {
+        let mean = |t: &Tensor| t.mean_dim([1i64, 2, 3].as_slice(), false, Kind::Float).unsqueeze(1);
+        let base = (mean(&x[0]) - mean(&x[1])) * 0.1 + x[2].narrow(1, 0, 7) * 0.5;
+        let steps = Tensor::arange(2, (Kind::Float, Device::Cpu)).reshape([1, 2, 1]) * 0.01;
+        vec![(base.unsqueeze(1) + steps).clamp(-0.3, 0.3)]
+    })
+    .unwrap()
+    .save(&file)
+    .unwrap();
+    std::fs::write(
+        d.join("model.json"),
+        r#"{"inputs": ["agentview", "wrist", "state"], "image_size": 32, "preprocessing": "rot180", "chunk_size": 2, "replan_steps": 2}"#,
+    )
+    .unwrap();
+    let specs = d.join("specs.parquet");
+    let s = specs.to_str().unwrap();
+    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
+    let actions = |name: &str, policy: String| -> Vec<Vec<String>> {
+        let run = d.join(name);
+        ok(pipeline(&["run", s, "--out", run.to_str().unwrap(), "--policy", &policy, "--max-steps", "6", "--jobs", "4"]));
+        let errors = sql_rows(&run, "SELECT count(*) FROM episodes WHERE error_kind IS NOT NULL", &[]);
+        assert_eq!(errors, [["0"]], "{name}");
+        sql_rows(
+            &run,
+            "SELECT episode_key, policy_step, action[1], action[3], action[4] FROM steps WHERE policy_step IS NOT NULL ORDER BY episode_key, step",
+            &[],
+        )
+    };
+    let single = actions("single", format!("torchscript:{}", file.display()));
+    let batched = actions("batched", format!("torchscript:{}?batch=4", file.display()));
+    assert_eq!(single.len(), 4 * 6);
+    for (a, b) in single.iter().zip(&batched) {
+        assert_eq!(a[..2], b[..2]);
+        for k in 2..5 {
+            let (x, y): (f64, f64) = (a[k].parse().unwrap(), b[k].parse().unwrap());
+            assert!((x - y).abs() < 1e-5, "{a:?} vs {b:?}");
+        }
+    }
+    let identity = sql_rows(&d.join("batched"), "SELECT policy_identity FROM manifest", &[]).concat().join(",");
+    assert!(identity.contains("max_episodes_per_forward"), "{identity}");
 }

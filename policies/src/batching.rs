@@ -23,6 +23,28 @@ pub trait BatchModel: Send + 'static {
     fn camera_size(&self) -> Option<u32> {
         None
     }
+    /// Actions of each chunk executed before the episode's next query.
+    fn replan_steps(&self) -> usize {
+        1
+    }
+}
+
+/// One shared [`Batcher`] per name (e.g. a model file) for the whole process: every rollout
+/// worker's policy instance must reach the same one.
+pub fn shared_batcher<M: BatchModel>(
+    name: &str,
+    make: impl FnOnce() -> Result<(M, usize, Duration), PolicyError>,
+) -> Result<Arc<Batcher>, PolicyError> {
+    static BATCHERS: std::sync::OnceLock<Mutex<std::collections::HashMap<String, Arc<Batcher>>>> =
+        std::sync::OnceLock::new();
+    let mut map = BATCHERS.get_or_init(Default::default).lock().expect("batchers");
+    if let Some(b) = map.get(name) {
+        return Ok(b.clone());
+    }
+    let (model, max_batch, max_wait) = make()?;
+    let b = Batcher::start(model, max_batch, max_wait);
+    map.insert(name.to_string(), b.clone());
+    Ok(b)
 }
 
 type Reply = Sender<Result<Vec<Action>, String>>;
@@ -37,6 +59,7 @@ pub struct BatchStats {
 pub struct Batcher {
     queue: Mutex<Sender<(String, Observation, Reply)>>,
     camera_size: Option<u32>,
+    replan_steps: usize,
     stats: Arc<Mutex<BatchStats>>,
 }
 
@@ -45,7 +68,7 @@ impl Batcher {
     pub fn start(mut model: impl BatchModel, max_batch: usize, max_wait: Duration) -> Arc<Batcher> {
         let (tx, rx): (Sender<(String, Observation, Reply)>, Receiver<_>) = channel();
         let stats = Arc::new(Mutex::new(BatchStats::default()));
-        let camera_size = model.camera_size();
+        let (camera_size, replan_steps) = (model.camera_size(), model.replan_steps());
         let thread_stats = stats.clone();
         std::thread::spawn(move || {
             // Ends when every sender (every policy and the batcher itself) is gone.
@@ -69,7 +92,12 @@ impl Batcher {
                 }
             }
         });
-        Arc::new(Batcher { queue: Mutex::new(tx), camera_size, stats })
+        Arc::new(Batcher { queue: Mutex::new(tx), camera_size, replan_steps, stats })
+    }
+
+    /// The model's [`BatchModel::replan_steps`].
+    pub fn replan_steps(&self) -> usize {
+        self.replan_steps
     }
 
     pub fn stats(&self) -> BatchStats {

@@ -18,8 +18,9 @@ pub enum PolicySpec {
     NanAt(u32),
     /// Diagnostic: the expert forced to let go early in its first carry (real `dropped` failures).
     ExpertDrop,
-    /// A TorchScript module with its `model.json` manifest (`torchscript:<file>`).
-    TorchScript(std::path::PathBuf),
+    /// A TorchScript module with its `model.json` manifest (`torchscript:<file>[?batch=N]`;
+    /// with `batch`, the rollout workers' queries share forwards of up to N episodes).
+    TorchScript { file: std::path::PathBuf, batch: Option<usize> },
     /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`).
     Openpi { url: String, replan_steps: usize },
 }
@@ -33,7 +34,7 @@ impl PolicySpec {
             PolicySpec::Expert => Box::new(Expert::new()),
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
             PolicySpec::ExpertDrop => Box::new(ExpertDrop::new()),
-            PolicySpec::TorchScript(file) => load_torchscript(file)?,
+            PolicySpec::TorchScript { file, batch } => load_torchscript(file, *batch)?,
             PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
                 replan_steps: *replan_steps,
                 ..OpenpiConfig::new(url.clone())
@@ -61,7 +62,7 @@ impl PolicySpec {
             })?
             .identity()),
             #[cfg(feature = "torch")]
-            PolicySpec::TorchScript(file) => Ok(crate::torchscript::TorchScriptPolicy::load(file)?.identity()),
+            PolicySpec::TorchScript { file, batch } => Ok(crate::torchscript::TorchScriptModel::load(file)?.identity(*batch)),
             _ => Ok(self.identity()),
         }
     }
@@ -85,7 +86,7 @@ impl PolicySpec {
             PolicySpec::NanAt(n) => {
                 serde_json::json!({"kind": "diagnostic", "name": "nan-at", "step": n})
             }
-            PolicySpec::TorchScript(file) => serde_json::json!({
+            PolicySpec::TorchScript { file, .. } => serde_json::json!({
                 "kind": "torchscript", "file": file.display().to_string(),
                 "sha256": "read at run start (resolve_identity)",
             }),
@@ -110,7 +111,8 @@ impl fmt::Display for PolicySpec {
             PolicySpec::Expert => f.write_str("expert"),
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
             PolicySpec::ExpertDrop => f.write_str("expert-drop"),
-            PolicySpec::TorchScript(file) => write!(f, "torchscript:{}", file.display()),
+            PolicySpec::TorchScript { file, batch: None } => write!(f, "torchscript:{}", file.display()),
+            PolicySpec::TorchScript { file, batch: Some(b) } => write!(f, "torchscript:{}?batch={b}", file.display()),
             PolicySpec::Openpi { url, replan_steps } if *replan_steps == LIBERO_REPLAN_STEPS => write!(f, "openpi:{url}"),
             PolicySpec::Openpi { url, replan_steps } => write!(f, "openpi:{url}?replan={replan_steps}"),
         }
@@ -126,13 +128,11 @@ impl FromStr for PolicySpec {
             "expert" => Ok(PolicySpec::Expert),
             "expert-drop" => Ok(PolicySpec::ExpertDrop),
             _ if s.starts_with("openpi:") => parse_openpi(&s["openpi:".len()..]),
-            _ if s.starts_with("torchscript:") && s.len() > "torchscript:".len() => {
-                Ok(PolicySpec::TorchScript(s["torchscript:".len()..].into()))
-            }
+            _ if s.starts_with("torchscript:") && s.len() > "torchscript:".len() => parse_torchscript(&s["torchscript:".len()..]),
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => {
-                    Err(format!("unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], torchscript:<model.pt>; diagnostics: nan-at:<policy step>, expert-drop"))
+                    Err(format!("unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], torchscript:<model.pt>[?batch=N]; diagnostics: nan-at:<policy step>, expert-drop"))
                 }
             },
         }
@@ -140,13 +140,39 @@ impl FromStr for PolicySpec {
 }
 
 #[cfg(feature = "torch")]
-fn load_torchscript(file: &std::path::Path) -> Result<Box<dyn Policy>, PolicyError> {
-    Ok(Box::new(crate::torchscript::TorchScriptPolicy::load(file)?))
+fn load_torchscript(file: &std::path::Path, batch: Option<usize>) -> Result<Box<dyn Policy>, PolicyError> {
+    use crate::batching::{BatchedPolicy, shared_batcher};
+    use crate::torchscript::{TorchScriptModel, TorchScriptPolicy};
+    match batch {
+        None => Ok(Box::new(TorchScriptPolicy::load(file)?)),
+        Some(n) => {
+            let batcher = shared_batcher(&format!("torchscript:{}", file.display()), || {
+                let model = TorchScriptModel::load(file)?;
+                // Wait briefly for the other workers' queries: they arrive within a physics step.
+                Ok((model, n, std::time::Duration::from_millis(20)))
+            })?;
+            let replan = batcher.replan_steps();
+            Ok(Box::new(BatchedPolicy::new(batcher, replan, "torchscript")))
+        }
+    }
 }
 
 #[cfg(not(feature = "torch"))]
-fn load_torchscript(_: &std::path::Path) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_torchscript(_: &std::path::Path, _: Option<usize>) -> Result<Box<dyn Policy>, PolicyError> {
     Err(PolicyError { policy: "torchscript".into(), detail: "this build has no libtorch (built without the `torch` feature)".into() })
+}
+
+/// `<file>[?batch=N]` of `torchscript:...`.
+fn parse_torchscript(rest: &str) -> Result<PolicySpec, String> {
+    let (file, query) = rest.split_once('?').map_or((rest, None), |(f, q)| (f, Some(q)));
+    let batch = match query {
+        None => None,
+        Some(q) => match q.strip_prefix("batch=").map(str::parse::<usize>) {
+            Some(Ok(n)) if n >= 1 => Some(n),
+            _ => return Err(format!("torchscript:{rest}: the only option is ?batch=N with N >= 1 (episodes per forward)")),
+        },
+    };
+    Ok(PolicySpec::TorchScript { file: file.into(), batch })
 }
 
 /// `ws://host:port[?replan=N]` of `openpi:...`.

@@ -27,6 +27,7 @@
 //!   mask), else already in env units. `gripper`: `openvla` ([0, 1] → sign → inverted) or `as_is`.
 //! - `replan_steps` of each chunk are executed before the module runs again ([`ActionChunker`]).
 
+use crate::batching::BatchModel;
 use crate::chunking::ActionChunker;
 use crate::postprocess::{ActionStats, Gripper, NormStats, postprocess_action};
 use crate::preprocess::{ImagePipeline, QuatSign, RgbImage, libero_state, proprio::wxyz_to_xyzw};
@@ -153,17 +154,16 @@ impl TorchScriptManifest {
     }
 }
 
-/// A TorchScript module and its manifest (`--policy torchscript:<file>`).
-pub struct TorchScriptPolicy {
+/// A loaded TorchScript module and its manifest: runs batches of observations.
+pub struct TorchScriptModel {
     module: CModule,
     manifest: TorchScriptManifest,
-    chunker: ActionChunker,
     device: Device,
     file: PathBuf,
     sha256: String,
 }
 
-impl TorchScriptPolicy {
+impl TorchScriptModel {
     /// Load `file` and its manifest, on the GPU when there is one.
     pub fn load(file: &Path) -> Result<Self, PolicyError> {
         let manifest_path = TorchScriptManifest::path_for(file);
@@ -177,12 +177,12 @@ impl TorchScriptPolicy {
         let mut module = CModule::load_on_device(file, device)
             .map_err(|e| err(format!("{} is not a TorchScript module libtorch 2.11 can load: {e}", file.display())))?;
         module.set_eval();
-        let chunker = ActionChunker::new(manifest.replan_steps);
-        Ok(TorchScriptPolicy { module, manifest, chunker, device, file: file.to_path_buf(), sha256 })
+        Ok(TorchScriptModel { module, manifest, device, file: file.to_path_buf(), sha256 })
     }
 
-    /// Identity for the run manifest: the file's hash, its manifest, preprocessing and chunking.
-    pub fn identity(&self) -> Value {
+    /// Identity for the run manifest: the file's hash, its manifest, preprocessing, chunking and
+    /// the batch size (`None`: one episode per forward).
+    pub fn identity(&self, batch: Option<usize>) -> Value {
         let m = &self.manifest;
         serde_json::json!({
             "kind": "torchscript", "name": NAME,
@@ -196,13 +196,13 @@ impl TorchScriptPolicy {
             "chunking": {"predicted": m.chunk_size, "executed": m.replan_steps},
             "unnorm_key": m.stats.as_ref().map(|(k, _)| k.clone()),
             "gripper": m.gripper.0,
+            "batch": batch.map_or(serde_json::json!("one episode per forward"), |b| serde_json::json!({"max_episodes_per_forward": b})),
             "device": format!("{:?}", self.device),
         })
     }
 
-    /// Model queries since the episode started.
-    pub fn queries(&self) -> u64 {
-        self.chunker.queries()
+    pub fn replan_steps(&self) -> usize {
+        self.manifest.replan_steps
     }
 
     fn image_tensor(&self, cam: &CameraImage) -> Result<Tensor, PolicyError> {
@@ -214,49 +214,101 @@ impl TorchScriptPolicy {
             return Err(err(format!("preprocessing gave {}x{} images, the manifest's image_size is {size}", img.width, img.height)));
         }
         let (h, w) = (img.height as i64, img.width as i64);
-        Ok(Tensor::from_slice(&img.rgb)
-            .reshape([h, w, 3])
-            .permute([2, 0, 1])
-            .to_kind(Kind::Float)
-            .divide_scalar(255.0)
-            .unsqueeze(0)
-            .to_device(self.device))
+        Ok(Tensor::from_slice(&img.rgb).reshape([h, w, 3]).permute([2, 0, 1]).to_kind(Kind::Float).divide_scalar(255.0).unsqueeze(0))
     }
 
-    /// Run the module once: the predicted chunk, in env units.
-    fn predict(&self, obs: &Observation) -> Result<Vec<Action>, PolicyError> {
-        let m = &self.manifest;
-        let mut args = Vec::with_capacity(m.inputs.len());
-        for input in &m.inputs {
-            args.push(match input {
+    /// The forward's arguments for one observation, each with a batch dimension of 1.
+    fn inputs(&self, obs: &Observation) -> Result<Vec<Tensor>, PolicyError> {
+        self.manifest
+            .inputs
+            .iter()
+            .map(|input| match input {
                 Input::State => {
                     let s = libero_state(obs.eef_pos, wxyz_to_xyzw(obs.hand_quat), obs.gripper_qpos, QuatSign::AsGiven);
-                    Tensor::from_slice(&s.map(|x| x as f32)).unsqueeze(0).to_device(self.device)
+                    Ok(Tensor::from_slice(&s.map(|x| x as f32)).unsqueeze(0))
                 }
                 Input::Agentview | Input::Wrist => {
                     let images = obs.images.as_ref().ok_or_else(|| err("the rollout gave no camera images"))?;
-                    self.image_tensor(if *input == Input::Agentview { &images.agentview } else { &images.wrist })?
-                }
-            });
-        }
-        let out = tch::no_grad(|| self.module.forward_ts(&args)).map_err(|e| err(format!("forward: {e}")))?;
-        let out = out.to_device(Device::Cpu).to_kind(Kind::Double);
-        let chunk = match out.size().as_slice() {
-            [1, n, 7] => out.reshape([*n, 7]),
-            [1, 7] => out.reshape([1, 7]),
-            other => return Err(err(format!("the module returned shape {other:?}; expected [1, chunk, 7] or [1, 7]"))),
-        };
-        let rows: Vec<Vec<f64>> = Vec::<Vec<f64>>::try_from(&chunk).map_err(|e| err(format!("reading the output: {e}")))?;
-        rows.iter()
-            .map(|r| match &m.stats {
-                Some((_, stats)) => postprocess_action(r, stats, m.gripper.1).map_err(|e| err(e.to_string())),
-                None => {
-                    let mut a: Action = std::array::from_fn(|i| r[i] as f32);
-                    a[6] = m.gripper.1.apply(r[6]) as f32;
-                    Ok(a)
+                    self.image_tensor(if *input == Input::Agentview { &images.agentview } else { &images.wrist })
                 }
             })
             .collect()
+    }
+
+    /// One forward for all `observations` (stacked along the batch dimension): a chunk each, in
+    /// env units.
+    pub fn predict(&self, observations: &[&Observation]) -> Result<Vec<Vec<Action>>, PolicyError> {
+        let per_obs = observations.iter().map(|o| self.inputs(o)).collect::<Result<Vec<_>, _>>()?;
+        let args: Vec<Tensor> = (0..self.manifest.inputs.len())
+            .map(|k| Tensor::cat(&per_obs.iter().map(|a| &a[k]).collect::<Vec<_>>(), 0).to_device(self.device))
+            .collect();
+        let out = tch::no_grad(|| self.module.forward_ts(&args)).map_err(|e| err(format!("forward: {e}")))?;
+        let out = out.to_device(Device::Cpu).to_kind(Kind::Double);
+        let b = observations.len() as i64;
+        let out = match out.size().as_slice() {
+            [n, c, 7] if *n == b => out.reshape([b, *c, 7]),
+            [n, 7] if *n == b => out.reshape([b, 1, 7]),
+            other => return Err(err(format!("the module returned shape {other:?}; expected [{b}, chunk, 7] or [{b}, 7]"))),
+        };
+        let m = &self.manifest;
+        (0..b)
+            .map(|i| {
+                let rows: Vec<Vec<f64>> =
+                    Vec::<Vec<f64>>::try_from(&out.get(i)).map_err(|e| err(format!("reading the output: {e}")))?;
+                rows.iter()
+                    .map(|r| match &m.stats {
+                        Some((_, stats)) => postprocess_action(r, stats, m.gripper.1).map_err(|e| err(e.to_string())),
+                        None => {
+                            let mut a: Action = std::array::from_fn(|i| r[i] as f32);
+                            a[6] = m.gripper.1.apply(r[6]) as f32;
+                            Ok(a)
+                        }
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+}
+
+impl BatchModel for TorchScriptModel {
+    fn predict_batch(&mut self, requests: &[(String, Observation)]) -> Vec<Result<Vec<Action>, String>> {
+        let observations: Vec<&Observation> = requests.iter().map(|(_, o)| o).collect();
+        match self.predict(&observations) {
+            Ok(chunks) => chunks.into_iter().map(Ok).collect(),
+            // A batch fails together; each episode gets the reason.
+            Err(e) => requests.iter().map(|_| Err(e.detail.clone())).collect(),
+        }
+    }
+
+    fn camera_size(&self) -> Option<u32> {
+        self.manifest.needs_images().then_some(self.manifest.render_size)
+    }
+
+    fn replan_steps(&self) -> usize {
+        self.manifest.replan_steps
+    }
+}
+
+/// A TorchScript module run for one episode at a time (`--policy torchscript:<file>`).
+pub struct TorchScriptPolicy {
+    model: TorchScriptModel,
+    chunker: ActionChunker,
+}
+
+impl TorchScriptPolicy {
+    pub fn load(file: &Path) -> Result<Self, PolicyError> {
+        let model = TorchScriptModel::load(file)?;
+        let chunker = ActionChunker::new(model.replan_steps());
+        Ok(TorchScriptPolicy { model, chunker })
+    }
+
+    pub fn identity(&self) -> Value {
+        self.model.identity(None)
+    }
+
+    /// Model queries since the episode started.
+    pub fn queries(&self) -> u64 {
+        self.chunker.queries()
     }
 }
 
@@ -266,12 +318,12 @@ impl Policy for TorchScriptPolicy {
     }
 
     fn camera_size(&self) -> Option<u32> {
-        (self.manifest.needs_images() && self.chunker.needs_query()).then_some(self.manifest.render_size)
+        (self.model.manifest.needs_images() && self.chunker.needs_query()).then_some(self.model.manifest.render_size)
     }
 
     fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
         if self.chunker.needs_query() {
-            let chunk = self.predict(obs)?;
+            let chunk = self.model.predict(&[obs])?.pop().ok_or_else(|| err("no chunk"))?;
             self.chunker.push_chunk(chunk).map_err(err)?;
         }
         self.chunker.next_action().ok_or_else(|| err("no action queued"))

@@ -23,6 +23,8 @@ mod baselines;
 pub mod batching;
 pub mod chunking;
 mod expert;
+#[cfg(feature = "torch")]
+pub mod openvla;
 pub mod postprocess;
 pub mod preprocess;
 pub mod remote;

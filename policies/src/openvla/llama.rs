@@ -1,0 +1,143 @@
+//! The Llama-2 language model as transformers' `LlamaForCausalLM` computes it (eager attention):
+//! RMSNorm in f32, rotary embeddings on the `rotate_half` layout of the HF weights, grouped-query
+//! attention when `num_key_value_heads < num_attention_heads`, a SiLU-gated MLP, no biases, and a
+//! key/value cache for greedy decoding.
+
+use super::OpenVlaError;
+use super::config::LlamaConfig;
+use super::weights::Weights;
+use tch::{Device, Kind, Tensor};
+
+struct Layer {
+    input_norm: Tensor,
+    q: Tensor,
+    k: Tensor,
+    v: Tensor,
+    o: Tensor,
+    post_norm: Tensor,
+    gate: Tensor,
+    up: Tensor,
+    down: Tensor,
+}
+
+pub struct Llama {
+    cfg: LlamaConfig,
+    embed: Tensor,
+    layers: Vec<Layer>,
+    norm: Tensor,
+    lm_head: Tensor,
+    inv_freq: Tensor,
+}
+
+/// Keys and values of the positions seen so far, per layer (`[B, kv_heads, T, head_dim]`).
+pub struct KvCache {
+    kv: Vec<Option<(Tensor, Tensor)>>,
+    len: i64,
+}
+
+impl Llama {
+    pub fn load(w: &mut Weights, cfg: &LlamaConfig, device: Device) -> Result<Self, OpenVlaError> {
+        let p = "language_model.model.";
+        let mut layers = Vec::new();
+        for i in 0..cfg.num_hidden_layers {
+            let mut t = |s: &str| w.take(&format!("{p}layers.{i}.{s}.weight"));
+            layers.push(Layer {
+                input_norm: t("input_layernorm")?,
+                q: t("self_attn.q_proj")?,
+                k: t("self_attn.k_proj")?,
+                v: t("self_attn.v_proj")?,
+                o: t("self_attn.o_proj")?,
+                post_norm: t("post_attention_layernorm")?,
+                gate: t("mlp.gate_proj")?,
+                up: t("mlp.up_proj")?,
+                down: t("mlp.down_proj")?,
+            });
+        }
+        let head_dim = cfg.hidden_size / cfg.num_attention_heads;
+        // transformers: 1.0 / (base ** (arange(0, dim, 2).float() / dim)), in f32
+        let exponent =
+            Tensor::arange_start_step(0, head_dim, 2, (Kind::Int64, device)).to_kind(Kind::Float) / head_dim as f64;
+        let inv_freq = Tensor::pow_scalar(cfg.rope_theta, &exponent).reciprocal();
+        Ok(Llama {
+            cfg: cfg.clone(),
+            embed: w.take(&format!("{p}embed_tokens.weight"))?,
+            layers,
+            norm: w.take(&format!("{p}norm.weight"))?,
+            lm_head: w.take("language_model.lm_head.weight")?,
+            inv_freq,
+        })
+    }
+
+    pub fn new_cache(&self) -> KvCache {
+        KvCache { kv: (0..self.layers.len()).map(|_| None).collect(), len: 0 }
+    }
+
+    /// `[B, T]` token ids → `[B, T, hidden]`.
+    pub fn embed(&self, ids: &Tensor) -> Tensor {
+        Tensor::embedding(&self.embed, ids, -1, false, false)
+    }
+
+    fn rms_norm(&self, x: &Tensor, w: &Tensor) -> Tensor {
+        let kind = x.kind();
+        let h = x.to_kind(Kind::Float);
+        let var = h.pow_tensor_scalar(2).mean_dim(-1, true, Kind::Float);
+        let h = &h * (var + self.cfg.rms_norm_eps).rsqrt();
+        w * h.to_kind(kind)
+    }
+
+    /// Runs `embeds` `[1, T, hidden]` after the cached positions; returns the logits of the last one
+    /// (`[vocab]`, f32).
+    // tch's `x += y` is in place (`add_`); these new tensors are built without touching their inputs
+    #[allow(clippy::assign_op_pattern)]
+    pub fn forward(&self, embeds: &Tensor, cache: &mut KvCache) -> Tensor {
+        let (b, t) = (embeds.size()[0], embeds.size()[1]);
+        let device = embeds.device();
+        let (nh, nkv) = (self.cfg.num_attention_heads, self.cfg.num_key_value_heads);
+        let hd = self.cfg.hidden_size / nh;
+        let pos = Tensor::arange_start(cache.len, cache.len + t, (Kind::Int64, device)).to_kind(Kind::Float);
+        let freqs = pos.unsqueeze(1).matmul(&self.inv_freq.unsqueeze(0));
+        let emb = Tensor::cat(&[&freqs, &freqs], -1);
+        let (cos, sin) = (emb.cos().to_kind(embeds.kind()), emb.sin().to_kind(embeds.kind()));
+        let rope = |x: &Tensor| {
+            let x1 = x.narrow(-1, 0, hd / 2);
+            let x2 = x.narrow(-1, hd / 2, hd / 2);
+            x * &cos + Tensor::cat(&[&x2.neg(), &x1], -1) * &sin
+        };
+        let total = cache.len + t;
+        let mask = (t > 1).then(|| {
+            let full = Tensor::full([t, total], f64::from(f32::MIN), (embeds.kind(), device));
+            full.triu(cache.len + 1)
+        });
+        let mut x = embeds.shallow_clone();
+        for (li, l) in self.layers.iter().enumerate() {
+            let h = self.rms_norm(&x, &l.input_norm);
+            let q = rope(&h.linear(&l.q, None::<Tensor>).view([b, t, nh, hd]).transpose(1, 2));
+            let k = rope(&h.linear(&l.k, None::<Tensor>).view([b, t, nkv, hd]).transpose(1, 2));
+            let v = h.linear(&l.v, None::<Tensor>).view([b, t, nkv, hd]).transpose(1, 2);
+            let (k, v) = match cache.kv[li].take() {
+                Some((pk, pv)) => (Tensor::cat(&[&pk, &k], 2), Tensor::cat(&[&pv, &v], 2)),
+                None => (k, v),
+            };
+            cache.kv[li] = Some((k.shallow_clone(), v.shallow_clone()));
+            let (k, v) = if nkv < nh {
+                (k.repeat_interleave_self_int(nh / nkv, 1, None), v.repeat_interleave_self_int(nh / nkv, 1, None))
+            } else {
+                (k, v)
+            };
+            let mut att = q.matmul(&k.transpose(2, 3)) / (hd as f64).sqrt();
+            if let Some(m) = &mask {
+                att = att + m;
+            }
+            let att = att.softmax(-1, Kind::Float).to_kind(q.kind());
+            let o = att.matmul(&v).transpose(1, 2).reshape([b, t, nh * hd]);
+            x = x + o.linear(&l.o, None::<Tensor>);
+            let h = self.rms_norm(&x, &l.post_norm);
+            let g = h.linear(&l.gate, None::<Tensor>).silu() * h.linear(&l.up, None::<Tensor>);
+            x = x + g.linear(&l.down, None::<Tensor>);
+        }
+        cache.len = total;
+        let last = x.narrow(1, t - 1, 1);
+        let last = self.rms_norm(&last, &self.norm);
+        last.linear(&self.lm_head, None::<Tensor>).to_kind(Kind::Float).view([-1])
+    }
+}

@@ -1,0 +1,203 @@
+//! OpenVLA in-process on libtorch: the Prismatic architecture of `openvla/openvla-7b` and its
+//! LIBERO fine-tunes, loaded from a Hugging Face checkpoint directory.
+//!
+//! The pieces, each as openvla's `prismatic/extern/hf/modeling_prismatic.py` computes them:
+//!
+//! - **Vision** ([`vision`]): the fused DINOv2 (ViT-L/14, 4 registers, LayerScale) + SigLIP
+//!   (so400m/14) featurizers, each read at its second-to-last block, patch features concatenated
+//!   along channels; `pixel_values` has 3 channels per backbone, each normalised with its own
+//!   mean/std (`preprocessor_config.json`).
+//! - **Projector**: `fc1 → GELU → fc2 → GELU → fc3` (`fused-gelu-mlp`).
+//! - **Language model** ([`llama`]): Llama-2 as transformers' `LlamaForCausalLM`, the projected patches
+//!   inserted after `<s>`.
+//! - **Action decoding** ([`action`]): the prompt `In: What action should the robot take to
+//!   {instruction.lower()}?\nOut:`, token 29871 appended when the prompt does not end with it,
+//!   greedy decoding of `action_dim` tokens, token → bin → bin center, un-normalised with the
+//!   checkpoint's q01/q99 and mask ([`crate::postprocess::ActionStats`]).
+//!
+//! The checkpoint directory holds `config.json`, `preprocessor_config.json`, `tokenizer.json`,
+//! `model.safetensors.index.json` with its shards, and optionally `dataset_statistics.json`.
+//! The image given to [`OpenVlaModel::predict_action`] is the one after the rollout's image
+//! preprocessing (180° rotation, JPEG round trip, resize to 224: [`crate::preprocess`]); the
+//! processor's own resize to 224 is then the identity.
+//!
+//! Tested against the Python reference (transformers + timm) on a tiny random-weight model of the
+//! same architecture: `tests/openvla_parity.rs`.
+
+pub mod action;
+pub mod config;
+mod llama;
+mod vision;
+mod weights;
+
+use crate::PolicyError;
+use crate::preprocess::RgbImage;
+pub use action::ActionBins;
+pub use config::OpenVlaConfig;
+use std::path::{Path, PathBuf};
+use tch::{Device, Kind, Tensor};
+
+/// Errors name the policy `openvla`.
+pub type OpenVlaError = PolicyError;
+
+pub(crate) fn bad(detail: impl Into<String>) -> OpenVlaError {
+    PolicyError { policy: "openvla".into(), detail: detail.into() }
+}
+
+/// Llama-2's `▁` token, which OpenVLA was trained to see after `Out:`.
+pub const EMPTY_TOKEN: i64 = 29871;
+
+/// openvla's LIBERO prompt (`experiments/robot/openvla_utils.py`, OpenVLA v0.1 excepted).
+pub fn prompt(instruction: &str) -> String {
+    format!("In: What action should the robot take to {}?\nOut:", instruction.to_lowercase())
+}
+
+/// One greedy decode.
+#[derive(Debug)]
+pub struct OpenVlaPrediction {
+    /// The prompt's token ids, `<s>` first and 29871 last.
+    pub input_ids: Vec<i64>,
+    /// The generated action tokens.
+    pub tokens: Vec<i64>,
+    pub bins: Vec<usize>,
+    /// In [-1, 1].
+    pub normalized_action: Vec<f64>,
+    /// Un-normalised with the checkpoint's statistics (q01/q99 where `mask`).
+    pub action: Vec<f64>,
+    /// `[action_dim, padded vocab]` f32: the last position's logits before each generated token.
+    pub step_logits: Tensor,
+}
+
+pub struct OpenVlaModel {
+    dir: PathBuf,
+    config: OpenVlaConfig,
+    tower: vision::VisionTower,
+    llm: llama::Llama,
+    tokenizer: tokenizers::Tokenizer,
+    bos: i64,
+    bins: ActionBins,
+    device: Device,
+    kind: Kind,
+}
+
+impl OpenVlaModel {
+    /// Loads `dir` on the CPU in f32.
+    pub fn load(dir: &Path) -> Result<Self, OpenVlaError> {
+        Self::load_on(dir, Device::Cpu, Kind::Float)
+    }
+
+    /// Loads `dir` on `device` with weights and activations in `kind` (the released checkpoints are
+    /// bf16; RMSNorm, softmax and the logits are computed in f32 as transformers does).
+    pub fn load_on(dir: &Path, device: Device, kind: Kind) -> Result<Self, OpenVlaError> {
+        let config = OpenVlaConfig::load(dir)?;
+        let tok_path = dir.join("tokenizer.json");
+        let tokenizer =
+            tokenizers::Tokenizer::from_file(&tok_path).map_err(|e| bad(format!("{}: {e}", tok_path.display())))?;
+        let bos =
+            tokenizer.token_to_id("<s>").ok_or_else(|| bad(format!("{}: no <s> token", tok_path.display())))? as i64;
+        let mut w = weights::Weights::load(dir, device, kind)?;
+        let names = ["vision_backbone.featurizer.", "vision_backbone.fused_featurizer."];
+        let mut featurizers = Vec::new();
+        for (bc, prefix) in config.backbones.iter().zip(names) {
+            featurizers.push(vision::Vit::load(&mut w, prefix, bc.num_heads, bc.quick_gelu, bc.image_size)?);
+        }
+        let tower = vision::VisionTower::new(featurizers, &mut w)?;
+        let llm = llama::Llama::load(&mut w, &config.text, device)?;
+        let bins = ActionBins::new(config.action_vocab_size, config.n_action_bins);
+        Ok(OpenVlaModel { dir: dir.to_path_buf(), config, tower, llm, tokenizer, bos, bins, device, kind })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    pub fn config(&self) -> &OpenVlaConfig {
+        &self.config
+    }
+
+    /// The processor's `pixel_values` `[1, 3·backbones, H, W]` of an image already at the model's
+    /// size: per backbone `(x / 255 - mean) / std`.
+    pub fn pixel_values(&self, image: &RgbImage) -> Result<Tensor, OpenVlaError> {
+        let size = self.config.backbones[0].image_size;
+        if i64::from(image.width) != size || i64::from(image.height) != size {
+            return Err(bad(format!(
+                "the image is {}x{}; OpenVLA takes {size}x{size} (after the rollout's preprocessing)",
+                image.width, image.height
+            )));
+        }
+        let x = Tensor::from_slice(&image.rgb).view([size, size, 3]).permute([2, 0, 1]).to_kind(Kind::Float) / 255.0;
+        let parts: Vec<Tensor> = self
+            .config
+            .backbones
+            .iter()
+            .map(|b| {
+                let mean = Tensor::from_slice(&b.mean.map(|m| m as f32)).view([3, 1, 1]);
+                let std = Tensor::from_slice(&b.std.map(|s| s as f32)).view([3, 1, 1]);
+                (&x - mean) / std
+            })
+            .collect();
+        Ok(Tensor::cat(&parts, 0).unsqueeze(0).to_device(self.device).to_kind(self.kind))
+    }
+
+    /// The prompt's token ids: `<s>` first (the tokenizer's template adds it), 29871 last.
+    pub fn input_ids(&self, instruction: &str) -> Result<Vec<i64>, OpenVlaError> {
+        let enc = self.tokenizer.encode(prompt(instruction), true).map_err(|e| bad(format!("tokenizer: {e}")))?;
+        let mut ids: Vec<i64> = enc.get_ids().iter().map(|&i| i64::from(i)).collect();
+        if ids.first() != Some(&self.bos) {
+            ids.insert(0, self.bos);
+        }
+        if ids.last() != Some(&EMPTY_TOKEN) {
+            ids.push(EMPTY_TOKEN);
+        }
+        Ok(ids)
+    }
+
+    /// The fused patch features `[1, patches, vision width]` and their projection `[1, patches, llm]`.
+    pub fn vision_features(&self, pixel_values: &Tensor) -> (Tensor, Tensor) {
+        tch::no_grad(|| {
+            let patches = self.tower.patch_features(pixel_values);
+            let projected = self.tower.project(&patches);
+            (patches, projected)
+        })
+    }
+
+    /// OpenVLA's `predict_action` on one image (RGB, at the model's size, as the rollout's
+    /// preprocessing leaves it) and instruction; `unnorm_key` selects the dataset statistics (`None`
+    /// when the checkpoint has one dataset).
+    pub fn predict_action(
+        &self,
+        image: &RgbImage,
+        instruction: &str,
+        unnorm_key: Option<&str>,
+    ) -> Result<OpenVlaPrediction, OpenVlaError> {
+        let stats = self.config.norm_stats.action(unnorm_key).map_err(|e| bad(e.to_string()))?.clone();
+        let pixel_values = self.pixel_values(image)?;
+        let input_ids = self.input_ids(instruction)?;
+        let (_, projected) = self.vision_features(&pixel_values);
+        let (tokens, step_logits) = tch::no_grad(|| {
+            let ids = Tensor::from_slice(&input_ids).view([1, -1]).to_device(self.device);
+            let emb = self.llm.embed(&ids);
+            let n = emb.size()[1];
+            let mm = Tensor::cat(&[emb.narrow(1, 0, 1), projected, emb.narrow(1, 1, n - 1)], 1);
+            let mut cache = self.llm.new_cache();
+            let mut logits = self.llm.forward(&mm, &mut cache);
+            let (mut tokens, mut all) = (Vec::new(), Vec::new());
+            for step in 0..stats.dim() {
+                let tok = logits.argmax(0, false).int64_value(&[]);
+                tokens.push(tok);
+                if step + 1 < stats.dim() {
+                    let next = Tensor::from_slice(&[tok]).view([1, 1]).to_device(self.device);
+                    let following = self.llm.forward(&self.llm.embed(&next), &mut cache);
+                    all.push(std::mem::replace(&mut logits, following));
+                } else {
+                    all.push(logits.shallow_clone());
+                }
+            }
+            (tokens, Tensor::stack(&all, 0))
+        });
+        let bins: Vec<usize> = tokens.iter().map(|&t| self.bins.bin(t)).collect();
+        let normalized_action: Vec<f64> = bins.iter().map(|&b| self.bins.center(b)).collect();
+        let action = stats.unnormalize(&normalized_action);
+        Ok(OpenVlaPrediction { input_ids, tokens, bins, normalized_action, action, step_logits })
+    }
+}

@@ -1,0 +1,125 @@
+//! The in-process OpenVLA port against the Python reference, on a tiny random-weight model of the
+//! same architecture (the 7B weights cannot be downloaded here): `scripts/reference/openvla_tiny.py`
+//! builds it with transformers + timm (the layer types and patches openvla's `modeling_prismatic.py`
+//! uses), saves it as a Hugging Face checkpoint (sharded safetensors, config.json, tokenizer.json,
+//! dataset_statistics.json), and writes its outputs on a fixed image and instruction. The Rust model
+//! loads that directory and must give the same prompt tokens, the same pixel values, patch features
+//! and projections, the same logits before each of the 7 greedy tokens (f32, max abs diff ≤ 1e-4),
+//! and the same tokens, bins and action.
+//!
+//! Needs the venv of `scripts/setup/openvla_ref_venv.sh`: `$LIBERO_OPENVLA_VENV`, else
+//! `<repo>/.openvla-venv`. Fails, never skips, when neither exists.
+
+use libero_policies::openvla::OpenVlaModel;
+use libero_policies::preprocess::RgbImage;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use tch::{Kind, Tensor};
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+}
+
+fn python() -> PathBuf {
+    let venv =
+        std::env::var_os("LIBERO_OPENVLA_VENV").map(PathBuf::from).unwrap_or_else(|| repo().join(".openvla-venv"));
+    let py = venv.join("bin/python");
+    assert!(
+        py.exists(),
+        "no OpenVLA reference venv at {} ({} missing): run ./setup.sh, or `bash scripts/setup/openvla_ref_venv.sh DIR` \
+         and set LIBERO_OPENVLA_VENV=DIR",
+        venv.display(),
+        py.display()
+    );
+    py
+}
+
+/// Builds the tiny checkpoint + reference outputs into a fresh directory under the target dir.
+fn build_reference() -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("openvla-tiny-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = Command::new(python())
+        .arg(repo().join("scripts/reference/openvla_tiny.py"))
+        .arg(&dir)
+        .output()
+        .expect("run openvla_tiny.py");
+    assert!(
+        out.status.success(),
+        "openvla_tiny.py failed:\n{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    dir
+}
+
+fn npy(dir: &Path, name: &str) -> Tensor {
+    Tensor::read_npy(dir.join("reference").join(name)).unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+fn max_abs_diff(a: &Tensor, b: &Tensor) -> f64 {
+    assert_eq!(a.size(), b.size(), "shapes differ");
+    (a.to_kind(Kind::Double) - b.to_kind(Kind::Double)).abs().max().double_value(&[])
+}
+
+#[test]
+fn tiny_openvla_matches_the_python_reference() {
+    let dir = build_reference();
+    let expected: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("reference/expected.json")).unwrap()).unwrap();
+    let model = OpenVlaModel::load(&dir).expect("load the tiny checkpoint");
+
+    let image_t = npy(&dir, "image.npy");
+    let size = image_t.size();
+    let rgb: Vec<u8> = Vec::try_from(image_t.flatten(0, -1)).unwrap();
+    let image = RgbImage::new(size[1] as u32, size[0] as u32, rgb).unwrap();
+    let instruction = expected["instruction"].as_str().unwrap();
+    let unnorm_key = expected["unnorm_key"].as_str().unwrap();
+
+    // prompt tokens (tokenizers crate vs transformers' LlamaTokenizerFast on the same tokenizer.json)
+    let ids: Vec<i64> = expected["input_ids"].as_array().unwrap().iter().map(|v| v.as_i64().unwrap()).collect();
+    assert_eq!(model.input_ids(instruction).unwrap(), ids, "prompt token ids");
+    assert_eq!(*ids.last().unwrap(), libero_policies::openvla::EMPTY_TOKEN);
+
+    // the stages, for a precise diagnosis when the end result differs
+    let pv = model.pixel_values(&image).unwrap();
+    let d_pv = max_abs_diff(&pv, &npy(&dir, "pixel_values.npy"));
+    let (patches, projected) = model.vision_features(&pv);
+    let d_patches = max_abs_diff(&patches, &npy(&dir, "patch_features.npy"));
+    let d_proj = max_abs_diff(&projected, &npy(&dir, "projected.npy"));
+
+    let pred = model.predict_action(&image, instruction, Some(unnorm_key)).unwrap();
+    let ref_logits = npy(&dir, "step_logits.npy");
+    let d_logits = max_abs_diff(&pred.step_logits, &ref_logits);
+    let per_step: Vec<String> = (0..ref_logits.size()[0])
+        .map(|i| format!("{:.2e}", max_abs_diff(&pred.step_logits.get(i), &ref_logits.get(i))))
+        .collect();
+    eprintln!(
+        "max |rust - python|: pixel_values {d_pv:.3e}, patch features {d_patches:.3e}, projected {d_proj:.3e}, \
+         logits {d_logits:.3e} (per step {}; logits range ±{:.1})",
+        per_step.join(", "),
+        ref_logits.abs().max().double_value(&[])
+    );
+    assert_eq!(d_pv, 0.0, "pixel values are computed with the same f32 operations");
+    assert!(d_patches <= 1e-4, "patch features differ by {d_patches}");
+    assert!(d_proj <= 1e-4, "projected patches differ by {d_proj}");
+    assert!(d_logits <= 1e-4, "logits differ by {d_logits}");
+
+    let tokens: Vec<i64> = expected["tokens"].as_array().unwrap().iter().map(|v| v.as_i64().unwrap()).collect();
+    assert_eq!(pred.tokens, tokens, "greedy action tokens");
+    let bins: Vec<usize> = expected["bins"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as usize).collect();
+    assert_eq!(pred.bins, bins);
+    let f64s = |k: &str| -> Vec<f64> { expected[k].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect() };
+    assert_eq!(pred.normalized_action, f64s("normalized_action"));
+    // numpy's f64 arithmetic, same order; JSON round trip of f64 is exact
+    assert_eq!(pred.action, f64s("action"));
+    // the tiny model decodes to several distinct bins, so the comparison is not vacuous
+    assert!(pred.bins.iter().collect::<std::collections::BTreeSet<_>>().len() >= 3);
+
+    // errors that name what to fix
+    let e = model.predict_action(&image, instruction, Some("libero_nope")).unwrap_err();
+    assert!(e.to_string().contains(unnorm_key), "{e}");
+    let small = RgbImage::new(8, 8, vec![0; 8 * 8 * 3]).unwrap();
+    assert!(model.predict_action(&small, instruction, None).unwrap_err().to_string().contains("224x224"));
+
+    let _ = std::fs::remove_dir_all(&dir);
+}

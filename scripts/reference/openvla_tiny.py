@@ -219,9 +219,13 @@ def save_checkpoint(model: TinyOpenVLA, out_dir: str, stats: dict):
             total += state[k].numel() * state[k].element_size()
     with open(os.path.join(out_dir, "model.safetensors.index.json"), "w") as f:
         json.dump({"metadata": {"total_size": total}, "weight_map": weight_map}, f, indent=2)
-    text_config = model.language_model.config.to_dict()
+    # As PretrainedConfig.to_diff_dict writes a nested config (the released config.json's text_config
+    # has only what differs from LlamaConfig's defaults, e.g. no rope_theta, no rms_norm_eps when 1e-6).
+    full, default = model.language_model.config.to_dict(), LlamaConfig().to_dict()
+    text_config = {k: v for k, v in full.items() if k not in default or default[k] != v}
     for k in ("architectures", "_name_or_path", "transformers_version", "torch_dtype", "_attn_implementation_autoset"):
         text_config.pop(k, None)
+    text_config["model_type"] = "llama"
     config = {
         "architectures": ["OpenVLAForActionPrediction"],
         "model_type": "openvla",

@@ -20,6 +20,7 @@ pub struct LlamaConfig {
     pub num_key_value_heads: i64,
     pub rms_norm_eps: f64,
     pub rope_theta: f64,
+    pub tie_word_embeddings: bool,
 }
 
 /// One timm ViT featurizer; the widths and the depth come from the weights.
@@ -77,20 +78,33 @@ impl OpenVlaConfig {
         let src = dir.join("config.json").display().to_string();
         let field = |k: &str| cfg.get(k).ok_or_else(|| bad(format!("{src}: {k} is missing")));
         let text = field("text_config")?;
-        let t_int = |k: &str| -> Result<i64, OpenVlaError> {
-            text.get(k).and_then(Value::as_i64).ok_or_else(|| bad(format!("{src}: text_config.{k} is missing")))
+        // Missing fields take transformers' LlamaConfig defaults (the released config.json writes only
+        // what differs from them).
+        let t_int = |k: &str, default: i64| -> Result<i64, OpenVlaError> {
+            match text.get(k) {
+                None | Some(Value::Null) => Ok(default),
+                Some(v) => v.as_i64().ok_or_else(|| bad(format!("{src}: text_config.{k} is not an integer"))),
+            }
         };
-        let heads = t_int("num_attention_heads")?;
+        let t_f64 = |k: &str, default: f64| text.get(k).and_then(Value::as_f64).unwrap_or(default);
+        let heads = t_int("num_attention_heads", 32)?;
         let text = LlamaConfig {
-            vocab_size: t_int("vocab_size")?,
-            hidden_size: t_int("hidden_size")?,
-            intermediate_size: t_int("intermediate_size")?,
-            num_hidden_layers: t_int("num_hidden_layers")? as usize,
+            vocab_size: t_int("vocab_size", 32000)?,
+            hidden_size: t_int("hidden_size", 4096)?,
+            intermediate_size: t_int("intermediate_size", 11008)?,
+            num_hidden_layers: t_int("num_hidden_layers", 32)? as usize,
             num_attention_heads: heads,
-            num_key_value_heads: text.get("num_key_value_heads").and_then(Value::as_i64).unwrap_or(heads),
-            rms_norm_eps: text.get("rms_norm_eps").and_then(Value::as_f64).unwrap_or(1e-6),
-            rope_theta: text.get("rope_theta").and_then(Value::as_f64).unwrap_or(10000.0),
+            num_key_value_heads: t_int("num_key_value_heads", heads)?,
+            rms_norm_eps: t_f64("rms_norm_eps", 1e-6),
+            rope_theta: t_f64("rope_theta", 10000.0),
+            tie_word_embeddings: text.get("tie_word_embeddings").and_then(Value::as_bool).unwrap_or(false),
         };
+        let tc = &cfg["text_config"];
+        if tc.get("hidden_act").and_then(Value::as_str).is_some_and(|a| a != "silu")
+            || tc.get("attention_bias").and_then(Value::as_bool) == Some(true)
+        {
+            return Err(bad(format!("{src}: text_config: only Llama's silu MLP without attention biases is ported")));
+        }
         if let Some(kind) = cfg["text_config"].get("model_type").and_then(Value::as_str)
             && kind != "llama"
         {

@@ -58,14 +58,13 @@ impl Llama {
         let exponent =
             Tensor::arange_start_step(0, head_dim, 2, (Kind::Int64, device)).to_kind(Kind::Float) / head_dim as f64;
         let inv_freq = Tensor::pow_scalar(cfg.rope_theta, &exponent).reciprocal();
-        Ok(Llama {
-            cfg: cfg.clone(),
-            embed: w.take(&format!("{p}embed_tokens.weight"))?,
-            layers,
-            norm: w.take(&format!("{p}norm.weight"))?,
-            lm_head: w.take("language_model.lm_head.weight")?,
-            inv_freq,
-        })
+        let embed = w.take(&format!("{p}embed_tokens.weight"))?;
+        let lm_head = match w.take_opt("language_model.lm_head.weight") {
+            Some(h) => h,
+            None if cfg.tie_word_embeddings => embed.shallow_clone(),
+            None => w.take("language_model.lm_head.weight")?,
+        };
+        Ok(Llama { cfg: cfg.clone(), embed, layers, norm: w.take(&format!("{p}norm.weight"))?, lm_head, inv_freq })
     }
 
     pub fn new_cache(&self) -> KvCache {
@@ -105,7 +104,14 @@ impl Llama {
         };
         let total = cache.len + t;
         let mask = (t > 1).then(|| {
-            let full = Tensor::full([t, total], f64::from(f32::MIN), (embeds.kind(), device));
+            // transformers fills with torch.finfo(dtype).min
+            let min = match embeds.kind() {
+                Kind::BFloat16 => -3.3895313892515355e38,
+                Kind::Half => -65504.0,
+                Kind::Double => f64::MIN,
+                _ => f64::from(f32::MIN),
+            };
+            let full = Tensor::full([t, total], min, (embeds.kind(), device));
             full.triu(cache.len + 1)
         });
         let mut x = embeds.shallow_clone();

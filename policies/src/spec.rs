@@ -21,6 +21,8 @@ pub enum PolicySpec {
     /// A TorchScript module with its `model.json` manifest (`torchscript:<file>[?batch=N]`;
     /// with `batch`, the rollout workers' queries share forwards of up to N episodes).
     TorchScript { file: std::path::PathBuf, batch: Option<usize> },
+    /// OpenVLA in process from a Hugging Face checkpoint directory (`openvla:<dir>[?unnorm=<key>]`).
+    OpenVla { dir: std::path::PathBuf, unnorm_key: Option<String> },
     /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`).
     Openpi { url: String, replan_steps: usize },
 }
@@ -35,6 +37,7 @@ impl PolicySpec {
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
             PolicySpec::ExpertDrop => Box::new(ExpertDrop::new()),
             PolicySpec::TorchScript { file, batch } => load_torchscript(file, *batch)?,
+            PolicySpec::OpenVla { dir, unnorm_key } => load_openvla(dir, unnorm_key.clone())?,
             PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
                 replan_steps: *replan_steps,
                 ..OpenpiConfig::new(url.clone())
@@ -63,6 +66,10 @@ impl PolicySpec {
             .identity()),
             #[cfg(feature = "torch")]
             PolicySpec::TorchScript { file, batch } => Ok(crate::torchscript::TorchScriptModel::load(file)?.identity(*batch)),
+            #[cfg(feature = "torch")]
+            PolicySpec::OpenVla { dir, unnorm_key } => {
+                Ok(crate::openvla::OpenVlaPolicy::load(dir, unnorm_key.clone())?.identity())
+            }
             _ => Ok(self.identity()),
         }
     }
@@ -86,6 +93,10 @@ impl PolicySpec {
             PolicySpec::NanAt(n) => {
                 serde_json::json!({"kind": "diagnostic", "name": "nan-at", "step": n})
             }
+            PolicySpec::OpenVla { dir, unnorm_key } => serde_json::json!({
+                "kind": "openvla", "checkpoint": dir.display().to_string(), "unnorm_key": unnorm_key,
+                "checkpoint_sha256": "read at run start (resolve_identity)",
+            }),
             PolicySpec::TorchScript { file, .. } => serde_json::json!({
                 "kind": "torchscript", "file": file.display().to_string(),
                 "sha256": "read at run start (resolve_identity)",
@@ -111,6 +122,8 @@ impl fmt::Display for PolicySpec {
             PolicySpec::Expert => f.write_str("expert"),
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
             PolicySpec::ExpertDrop => f.write_str("expert-drop"),
+            PolicySpec::OpenVla { dir, unnorm_key: None } => write!(f, "openvla:{}", dir.display()),
+            PolicySpec::OpenVla { dir, unnorm_key: Some(k) } => write!(f, "openvla:{}?unnorm={k}", dir.display()),
             PolicySpec::TorchScript { file, batch: None } => write!(f, "torchscript:{}", file.display()),
             PolicySpec::TorchScript { file, batch: Some(b) } => write!(f, "torchscript:{}?batch={b}", file.display()),
             PolicySpec::Openpi { url, replan_steps } if *replan_steps == LIBERO_REPLAN_STEPS => write!(f, "openpi:{url}"),
@@ -128,11 +141,23 @@ impl FromStr for PolicySpec {
             "expert" => Ok(PolicySpec::Expert),
             "expert-drop" => Ok(PolicySpec::ExpertDrop),
             _ if s.starts_with("openpi:") => parse_openpi(&s["openpi:".len()..]),
+            _ if s.starts_with("openvla:") && s.len() > "openvla:".len() => {
+                let rest = &s["openvla:".len()..];
+                let (dir, query) = rest.split_once('?').map_or((rest, None), |(d, q)| (d, Some(q)));
+                let unnorm_key = match query {
+                    None => None,
+                    Some(q) => match q.strip_prefix("unnorm=") {
+                        Some(k) if !k.is_empty() => Some(k.to_string()),
+                        _ => return Err(format!("openvla:{rest}: the only option is ?unnorm=<dataset key>")),
+                    },
+                };
+                Ok(PolicySpec::OpenVla { dir: dir.into(), unnorm_key })
+            }
             _ if s.starts_with("torchscript:") && s.len() > "torchscript:".len() => parse_torchscript(&s["torchscript:".len()..]),
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => {
-                    Err(format!("unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], torchscript:<model.pt>[?batch=N]; diagnostics: nan-at:<policy step>, expert-drop"))
+                    Err(format!("unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>]; diagnostics: nan-at:<policy step>, expert-drop"))
                 }
             },
         }
@@ -155,6 +180,16 @@ fn load_torchscript(file: &std::path::Path, batch: Option<usize>) -> Result<Box<
             Ok(Box::new(BatchedPolicy::new(batcher, replan, "torchscript")))
         }
     }
+}
+
+#[cfg(feature = "torch")]
+fn load_openvla(dir: &std::path::Path, unnorm_key: Option<String>) -> Result<Box<dyn Policy>, PolicyError> {
+    Ok(Box::new(crate::openvla::OpenVlaPolicy::load(dir, unnorm_key)?))
+}
+
+#[cfg(not(feature = "torch"))]
+fn load_openvla(_: &std::path::Path, _: Option<String>) -> Result<Box<dyn Policy>, PolicyError> {
+    Err(PolicyError { policy: "openvla".into(), detail: "this build has no libtorch (built without the `torch` feature)".into() })
 }
 
 #[cfg(not(feature = "torch"))]

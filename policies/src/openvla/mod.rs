@@ -27,6 +27,7 @@
 pub mod action;
 pub mod config;
 mod llama;
+pub mod policy;
 mod vision;
 mod weights;
 
@@ -34,6 +35,7 @@ use crate::PolicyError;
 use crate::preprocess::RgbImage;
 pub use action::ActionBins;
 pub use config::OpenVlaConfig;
+pub use policy::OpenVlaPolicy;
 use std::path::{Path, PathBuf};
 use tch::{Device, Kind, Tensor};
 

@@ -1,0 +1,107 @@
+//! OpenVLA as a [`Policy`] (`--policy openvla:<checkpoint dir>[?unnorm=<key>]`): the published
+//! LIBERO loop's conventions around [`OpenVlaModel`]: the agentview camera rendered at 256²,
+//! OpenVLA's preprocessing ([`ImagePipeline::OPENVLA`]: rot180, JPEG 95, Lanczos 224, center crop
+//! 0.9), one action per query (no chunking), un-normalised with the checkpoint's statistics of
+//! `unnorm_key`, gripper [0, 1] → sign → inverted. bf16 on a GPU, fp32 on a CPU.
+
+use super::OpenVlaModel;
+use crate::postprocess::Gripper;
+use crate::preprocess::{ImagePipeline, RgbImage};
+use crate::{Action, Observation, Policy, PolicyError};
+use sha2::{Digest, Sha256};
+use std::path::Path;
+use tch::{Device, Kind};
+
+const NAME: &str = "openvla";
+/// The camera size of OpenVLA's LIBERO loop (`resize_size` 224 comes after).
+pub const RENDER_SIZE: u32 = 256;
+
+fn err(detail: impl Into<String>) -> PolicyError {
+    PolicyError { policy: NAME.into(), detail: detail.into() }
+}
+
+pub struct OpenVlaPolicy {
+    model: OpenVlaModel,
+    unnorm_key: Option<String>,
+    instruction: String,
+    checkpoint_sha256: String,
+    dtype: Kind,
+}
+
+impl OpenVlaPolicy {
+    /// Load the checkpoint directory; a wrong or missing `unnorm_key` fails here, listing the keys
+    /// the checkpoint has.
+    pub fn load(dir: &Path, unnorm_key: Option<String>) -> Result<Self, PolicyError> {
+        let device = Device::cuda_if_available();
+        let dtype = if device.is_cuda() { Kind::BFloat16 } else { Kind::Float };
+        let model = OpenVlaModel::load_on(dir, device, dtype).map_err(|e| err(e.to_string()))?;
+        model.config().norm_stats.action(unnorm_key.as_deref()).map_err(|e| err(e.to_string()))?;
+        Ok(OpenVlaPolicy {
+            model,
+            unnorm_key,
+            instruction: String::new(),
+            checkpoint_sha256: checkpoint_hash(dir)?,
+            dtype,
+        })
+    }
+
+    pub fn identity(&self) -> serde_json::Value {
+        serde_json::json!({
+            "kind": "openvla", "name": NAME,
+            "checkpoint": self.model.dir().display().to_string(),
+            "checkpoint_sha256": self.checkpoint_sha256,
+            "unnorm_key": self.unnorm_key,
+            "images": {"cameras": ["agentview"], "render": format!("{RENDER_SIZE}x{RENDER_SIZE}, look mujoco-3.2.3"),
+                       "preprocessing": ImagePipeline::OPENVLA.describe()},
+            "prompt": super::prompt("{instruction}"),
+            "decoding": "greedy, 7 action tokens from the last 256 vocabulary bins",
+            "gripper": "[0,1] -> 2g-1 -> sign -> inverted",
+            "chunking": {"predicted": 1, "executed": 1},
+            "dtype": format!("{:?}", self.dtype),
+        })
+    }
+}
+
+/// sha256 over the checkpoint's small files and every weight file (name and bytes), sorted.
+fn checkpoint_hash(dir: &Path) -> Result<String, PolicyError> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .map_err(|e| err(format!("{}: {e}", dir.display())))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "json" || x == "safetensors"))
+        .collect();
+    files.sort();
+    let mut h = Sha256::new();
+    for f in files {
+        h.update(f.file_name().unwrap_or_default().as_encoded_bytes());
+        let mut file = std::fs::File::open(&f).map_err(|e| err(format!("{}: {e}", f.display())))?;
+        std::io::copy(&mut file, &mut h).map_err(|e| err(format!("{}: {e}", f.display())))?;
+    }
+    Ok(format!("{:x}", h.finalize()))
+}
+
+impl Policy for OpenVlaPolicy {
+    fn reset(&mut self, instruction: &str, _episode_seed: u64) {
+        self.instruction = instruction.to_string();
+    }
+
+    fn camera_size(&self) -> Option<u32> {
+        Some(RENDER_SIZE)
+    }
+
+    fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
+        let cam = &obs.images.as_ref().ok_or_else(|| err("the rollout gave no camera images"))?.agentview;
+        let image = RgbImage::new(cam.width, cam.height, cam.rgb.clone())
+            .and_then(|i| ImagePipeline::OPENVLA.apply(&i))
+            .map_err(|e| err(format!("image preprocessing: {e}")))?;
+        let p = self
+            .model
+            .predict_action(&image, &self.instruction, self.unnorm_key.as_deref())
+            .map_err(|e| err(e.to_string()))?;
+        if p.action.len() != 7 {
+            return Err(err(format!("the checkpoint predicts {} action dimensions, LIBERO needs 7", p.action.len())));
+        }
+        let mut a: Action = std::array::from_fn(|i| p.action[i] as f32);
+        a[6] = Gripper::OPENVLA.apply(p.action[6]) as f32;
+        Ok(a)
+    }
+}

@@ -68,7 +68,7 @@ impl PolicySpec {
             PolicySpec::TorchScript { file, batch } => Ok(crate::torchscript::TorchScriptModel::load(file)?.identity(*batch)),
             #[cfg(feature = "torch")]
             PolicySpec::OpenVla { dir, unnorm_key } => {
-                Ok(crate::openvla::OpenVlaPolicy::load(dir, unnorm_key.clone())?.identity())
+                crate::openvla::OpenVlaPolicy::identity_of(dir, unnorm_key.as_deref())
             }
             _ => Ok(self.identity()),
         }

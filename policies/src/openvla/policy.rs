@@ -24,41 +24,47 @@ pub struct OpenVlaPolicy {
     model: OpenVlaModel,
     unnorm_key: Option<String>,
     instruction: String,
-    checkpoint_sha256: String,
-    dtype: Kind,
+}
+
+/// bf16 on a GPU (the released checkpoints' dtype), fp32 on a CPU.
+fn device_and_dtype() -> (Device, Kind) {
+    let device = Device::cuda_if_available();
+    (device, if device.is_cuda() { Kind::BFloat16 } else { Kind::Float })
+}
+
+/// A wrong or missing `unnorm_key` is an error listing the keys the checkpoint has.
+fn check_unnorm_key(config: &super::OpenVlaConfig, unnorm_key: Option<&str>) -> Result<(), PolicyError> {
+    config.norm_stats.action(unnorm_key).map(|_| ()).map_err(|e| err(e.to_string()))
 }
 
 impl OpenVlaPolicy {
     /// Load the checkpoint directory; a wrong or missing `unnorm_key` fails here, listing the keys
     /// the checkpoint has.
     pub fn load(dir: &Path, unnorm_key: Option<String>) -> Result<Self, PolicyError> {
-        let device = Device::cuda_if_available();
-        let dtype = if device.is_cuda() { Kind::BFloat16 } else { Kind::Float };
+        let (device, dtype) = device_and_dtype();
         let model = OpenVlaModel::load_on(dir, device, dtype).map_err(|e| err(e.to_string()))?;
-        model.config().norm_stats.action(unnorm_key.as_deref()).map_err(|e| err(e.to_string()))?;
-        Ok(OpenVlaPolicy {
-            model,
-            unnorm_key,
-            instruction: String::new(),
-            checkpoint_sha256: checkpoint_hash(dir)?,
-            dtype,
-        })
+        check_unnorm_key(model.config(), unnorm_key.as_deref())?;
+        Ok(OpenVlaPolicy { model, unnorm_key, instruction: String::new() })
     }
 
-    pub fn identity(&self) -> serde_json::Value {
-        serde_json::json!({
+    /// Identity for the run manifest, from the checkpoint's files without loading its weights
+    /// (once per run, at its start; each worker then loads the model itself). Checks the key.
+    pub fn identity_of(dir: &Path, unnorm_key: Option<&str>) -> Result<serde_json::Value, PolicyError> {
+        let config = super::OpenVlaConfig::load(dir).map_err(|e| err(e.to_string()))?;
+        check_unnorm_key(&config, unnorm_key)?;
+        Ok(serde_json::json!({
             "kind": "openvla", "name": NAME,
-            "checkpoint": self.model.dir().display().to_string(),
-            "checkpoint_sha256": self.checkpoint_sha256,
-            "unnorm_key": self.unnorm_key,
+            "checkpoint": dir.display().to_string(),
+            "checkpoint_sha256": checkpoint_hash(dir)?,
+            "unnorm_key": unnorm_key,
             "images": {"cameras": ["agentview"], "render": format!("{RENDER_SIZE}x{RENDER_SIZE}, look mujoco-3.2.3"),
                        "preprocessing": ImagePipeline::OPENVLA.describe()},
             "prompt": super::prompt("{instruction}"),
             "decoding": "greedy, 7 action tokens from the last 256 vocabulary bins",
             "gripper": "[0,1] -> 2g-1 -> sign -> inverted",
             "chunking": {"predicted": 1, "executed": 1},
-            "dtype": format!("{:?}", self.dtype),
-        })
+            "dtype": format!("{:?}", device_and_dtype().1),
+        }))
     }
 }
 

@@ -13,7 +13,18 @@ fn help_lists_the_subcommands_that_exist() {
     assert!(out.status.success());
     let text = String::from_utf8_lossy(&out.stdout);
     for cmd in [
-        "tasks", "specs", "run", "results", "failures", "sql", "compare", "sample-size", "smoke", "video", "videos", "bench",
+        "tasks",
+        "specs",
+        "run",
+        "results",
+        "failures",
+        "sql",
+        "compare",
+        "sample-size",
+        "smoke",
+        "video",
+        "videos",
+        "bench",
     ] {
         assert!(text.contains(cmd), "{cmd} missing from --help:\n{text}");
     }

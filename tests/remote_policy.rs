@@ -36,7 +36,8 @@ impl ToyServer {
             .expect("start the toy server");
         let mut line = String::new();
         BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-        let port = line.trim().strip_prefix("listening on ").unwrap_or_else(|| panic!("server said {line:?}")).to_string();
+        let port =
+            line.trim().strip_prefix("listening on ").unwrap_or_else(|| panic!("server said {line:?}")).to_string();
         ToyServer { child, url: format!("ws://127.0.0.1:{port}") }
     }
 }

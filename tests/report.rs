@@ -11,7 +11,10 @@ use std::process::Command;
 const CHROMIUM: &str = "/usr/bin/chromium";
 
 fn chromium() -> &'static str {
-    assert!(Path::new(CHROMIUM).exists(), "no Chromium at {CHROMIUM}: run ./setup.sh (as root it installs the Debian package chromium)");
+    assert!(
+        Path::new(CHROMIUM).exists(),
+        "no Chromium at {CHROMIUM}: run ./setup.sh (as root it installs the Debian package chromium)"
+    );
     CHROMIUM
 }
 
@@ -24,14 +27,19 @@ struct BrowserLoad {
 
 fn load_in_chromium(page: &Path, screenshot: &Path) -> BrowserLoad {
     let url = format!("file://{}", page.display());
-    let common = ["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--enable-logging=stderr", "--v=0"];
+    let common =
+        ["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--enable-logging=stderr", "--v=0"];
     let shot = Command::new(chromium())
         .args(common)
         .args(["--window-size=1280,2400", &format!("--screenshot={}", screenshot.display()), &url])
         .output()
         .expect("run chromium");
     let dump = Command::new(chromium()).args(common).args(["--dump-dom", &url]).output().expect("run chromium");
-    assert!(shot.status.success() && dump.status.success(), "chromium failed: {}", String::from_utf8_lossy(&shot.stderr));
+    assert!(
+        shot.status.success() && dump.status.success(),
+        "chromium failed: {}",
+        String::from_utf8_lossy(&shot.stderr)
+    );
     // Chromium logs the page's console messages and uncaught exceptions as `CONSOLE(line)` lines.
     let console_errors = [&shot.stderr, &dump.stderr]
         .iter()
@@ -55,7 +63,11 @@ fn the_browser_check_catches_a_console_error() {
     // The check below is only worth something if it fails on a broken page.
     let d = test_dir("report", "broken");
     let page = d.join("broken.html");
-    std::fs::write(&page, "<!doctype html><body><p>x</p><script>console.error('boom'); undefinedFunction();</script></body>").unwrap();
+    std::fs::write(
+        &page,
+        "<!doctype html><body><p>x</p><script>console.error('boom'); undefinedFunction();</script></body>",
+    )
+    .unwrap();
     let load = load_in_chromium(&page, &d.join("broken.png"));
     assert!(!load.console_errors.is_empty(), "a console.error and an uncaught exception went unnoticed");
 }
@@ -66,7 +78,15 @@ fn the_report_is_a_self_contained_page_that_renders_without_console_errors() {
     let subject = real_run(&d, "expert-drop", "120");
     let baseline = real_run(&d, "random", "20");
     let out = d.join("outputs");
-    ok(pipeline(&["smoke", "--out", out.join("smoke").to_str().unwrap(), "--suites", "libero_spatial", "--size", "128"]));
+    ok(pipeline(&[
+        "smoke",
+        "--out",
+        out.join("smoke").to_str().unwrap(),
+        "--suites",
+        "libero_spatial",
+        "--size",
+        "128",
+    ]));
     let stdout = ok(pipeline(&[
         "report",
         "--run",
@@ -78,7 +98,9 @@ fn the_report_is_a_self_contained_page_that_renders_without_console_errors() {
         out.to_str().unwrap(),
     ]));
     assert!(stdout.contains("report.html"), "{stdout}");
-    for f in ["results.csv", "results_by_task.csv", "failure_modes.csv", "failure_summary.csv", "published_comparison.csv"] {
+    for f in
+        ["results.csv", "results_by_task.csv", "failure_modes.csv", "failure_summary.csv", "published_comparison.csv"]
+    {
         assert!(out.join(f).exists(), "{f} missing");
     }
     let html = std::fs::read_to_string(out.join("report.html")).unwrap();

@@ -91,7 +91,18 @@ fn batched_forwards_give_each_episode_the_actions_of_an_unbatched_run() {
     ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
     let actions = |name: &str, policy: String| -> Vec<Vec<String>> {
         let run = d.join(name);
-        ok(pipeline(&["run", s, "--out", run.to_str().unwrap(), "--policy", &policy, "--max-steps", "6", "--jobs", "4"]));
+        ok(pipeline(&[
+            "run",
+            s,
+            "--out",
+            run.to_str().unwrap(),
+            "--policy",
+            &policy,
+            "--max-steps",
+            "6",
+            "--jobs",
+            "4",
+        ]));
         let errors = sql_rows(&run, "SELECT count(*) FROM episodes WHERE error_kind IS NOT NULL", &[]);
         assert_eq!(errors, [["0"]], "{name}");
         sql_rows(

@@ -54,13 +54,11 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         crate::video::render_selection(bundles, &args.runs[0], args.scoring, &args.out.join("failures"))?;
     }
     let runtime = tokio::runtime::Runtime::new()?;
-    let tables: Vec<RunTables> = args
-        .runs
-        .iter()
-        .map(|location| runtime.block_on(query_run(location, args.scoring)))
-        .collect::<Result<_>>()?;
+    let tables: Vec<RunTables> =
+        args.runs.iter().map(|location| runtime.block_on(query_run(location, args.scoring))).collect::<Result<_>>()?;
 
-    let all = |f: fn(&RunTables) -> &Vec<RecordBatch>| tables.iter().flat_map(|t| f(t).iter().cloned()).collect::<Vec<_>>();
+    let all =
+        |f: fn(&RunTables) -> &Vec<RecordBatch>| tables.iter().flat_map(|t| f(t).iter().cloned()).collect::<Vec<_>>();
     write_csv(&args.out.join("results.csv"), &all(|t| &t.suites))?;
     write_csv(&args.out.join("results_by_task.csv"), &all(|t| &t.tasks))?;
     write_csv(&args.out.join("failure_modes.csv"), &all(|t| &t.failure_modes))?;

@@ -10,20 +10,20 @@
 //! ends on a card with the outcome.
 
 use crate::media::{Mp4Writer, PanelArgs, render_card, render_panel};
-use arrow::array::StringArray;
-use arrow::datatypes::{DataType, Field, Schema};
-use arrow::record_batch::RecordBatch;
-use std::sync::Arc;
 use crate::results::write_csv;
 use crate::session::{self, RunScoring, Scoring};
 use anyhow::{Context, Result, bail};
+use arrow::array::StringArray;
 use arrow::array::{Array, AsArray};
+use arrow::datatypes::{DataType, Field, Schema};
 use arrow::datatypes::{Float32Type, Float64Type, Int32Type, Int64Type};
+use arrow::record_batch::RecordBatch;
 use libero_sim::bundle::BundleSet;
 use libero_sim::env::LiberoEnv;
 use libero_sim::gl::GlContext;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
+use std::sync::Arc;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -211,7 +211,13 @@ fn outcome_line(ep: &StoredEpisode) -> String {
     }
 }
 
-fn replay_to_video(set: &BundleSet, gl: &Rc<GlContext>, ep: &StoredEpisode, args: &RenderArgs, path: &Path) -> Result<u64> {
+fn replay_to_video(
+    set: &BundleSet,
+    gl: &Rc<GlContext>,
+    ep: &StoredEpisode,
+    args: &RenderArgs,
+    path: &Path,
+) -> Result<u64> {
     if args.every == 0 || args.fps == 0 {
         bail!("--every and --fps must be at least 1");
     }
@@ -272,7 +278,8 @@ fn replay_to_video(set: &BundleSet, gl: &Rc<GlContext>, ep: &StoredEpisode, args
         ep.failure_mode.as_deref().unwrap_or("-"),
         crate::media::wrap(&ep.instruction, 50, 3)
     );
-    let background = if ep.failure_mode.is_none() && ep.error.is_none() { [0.05, 0.3, 0.1] } else { [0.35, 0.05, 0.05] };
+    let background =
+        if ep.failure_mode.is_none() && ep.error.is_none() { [0.05, 0.3, 0.1] } else { [0.35, 0.05, 0.05] };
     let card = render_card(&mut renderer, layout.width(), layout.height(), &card, background)?;
     for _ in 0..2 * args.fps {
         video.push(&card)?;
@@ -285,7 +292,11 @@ fn yes_no(b: bool) -> &'static str {
 }
 
 /// The stored episodes `keys` of the run open in `ctx` (`run` names it in errors).
-async fn load_episodes(ctx: &datafusion::prelude::SessionContext, run: &str, keys: &[String]) -> Result<Vec<StoredEpisode>> {
+async fn load_episodes(
+    ctx: &datafusion::prelude::SessionContext,
+    run: &str,
+    keys: &[String],
+) -> Result<Vec<StoredEpisode>> {
     let mut out = Vec::new();
     for key in keys {
         let quoted = format!("'{}'", key.replace('\'', "''"));
@@ -309,10 +320,8 @@ async fn load_episodes(ctx: &datafusion::prelude::SessionContext, run: &str, key
             .collect()
             .await
             .context("queries/failure_modes.sql")?;
-        let failure_mode = modes
-            .iter()
-            .find(|m| m.num_rows() > 0)
-            .map(|m| m.column(0).as_string::<i32>().value(0).to_string());
+        let failure_mode =
+            modes.iter().find(|m| m.num_rows() > 0).map(|m| m.column(0).as_string::<i32>().value(0).to_string());
         let success = b.column(5).as_boolean();
         let error = b.column(7).as_string::<i32>();
         let steps = ctx

@@ -126,7 +126,12 @@ pub struct BatchedPolicy {
 
 impl BatchedPolicy {
     pub fn new(batcher: Arc<Batcher>, replan_steps: usize, name: &str) -> Self {
-        BatchedPolicy { batcher, chunker: ActionChunker::new(replan_steps), instruction: String::new(), name: name.into() }
+        BatchedPolicy {
+            batcher,
+            chunker: ActionChunker::new(replan_steps),
+            instruction: String::new(),
+            name: name.into(),
+        }
     }
 }
 

@@ -29,9 +29,9 @@ pub mod postprocess;
 pub mod preprocess;
 pub mod remote;
 pub mod scene;
+mod spec;
 #[cfg(feature = "torch")]
 pub mod torchscript;
-mod spec;
 
 pub use baselines::{LiftPolicy, NanAtPolicy, RandomPolicy};
 pub use expert::{Expert, ExpertDrop};

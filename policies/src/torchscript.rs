@@ -76,14 +76,18 @@ impl TorchScriptManifest {
         let v: Value = serde_json::from_str(text).map_err(|e| bad(format!("not JSON: {e}")))?;
         let uint = |key: &str, default: Option<u64>| -> Result<u64, PolicyError> {
             match v.get(key) {
-                Some(x) => x.as_u64().filter(|&n| n > 0).ok_or_else(|| bad(format!("{key} must be a positive integer"))),
+                Some(x) => {
+                    x.as_u64().filter(|&n| n > 0).ok_or_else(|| bad(format!("{key} must be a positive integer")))
+                }
                 None => default.ok_or_else(|| bad(format!("{key} is missing"))),
             }
         };
         let inputs = v
             .get("inputs")
             .and_then(Value::as_array)
-            .ok_or_else(|| bad("inputs must list the forward's arguments, e.g. [\"agentview\", \"wrist\", \"state\"]".into()))?
+            .ok_or_else(|| {
+                bad("inputs must list the forward's arguments, e.g. [\"agentview\", \"wrist\", \"state\"]".into())
+            })?
             .iter()
             .map(|x| match x.as_str() {
                 Some("agentview") => Ok(Input::Agentview),
@@ -168,7 +172,10 @@ impl TorchScriptModel {
     pub fn load(file: &Path) -> Result<Self, PolicyError> {
         let manifest_path = TorchScriptManifest::path_for(file);
         let text = std::fs::read_to_string(&manifest_path).map_err(|e| {
-            err(format!("{}: {e}; a TorchScript policy needs its manifest beside it (see policies::torchscript)", manifest_path.display()))
+            err(format!(
+                "{}: {e}; a TorchScript policy needs its manifest beside it (see policies::torchscript)",
+                manifest_path.display()
+            ))
         })?;
         let manifest = TorchScriptManifest::parse(&text, &manifest_path)?;
         let bytes = std::fs::read(file).map_err(|e| err(format!("{}: {e}", file.display())))?;
@@ -211,10 +218,18 @@ impl TorchScriptModel {
             .map_err(|e| err(format!("image preprocessing: {e}")))?;
         let size = self.manifest.image_size;
         if (img.width, img.height) != (size, size) {
-            return Err(err(format!("preprocessing gave {}x{} images, the manifest's image_size is {size}", img.width, img.height)));
+            return Err(err(format!(
+                "preprocessing gave {}x{} images, the manifest's image_size is {size}",
+                img.width, img.height
+            )));
         }
         let (h, w) = (img.height as i64, img.width as i64);
-        Ok(Tensor::from_slice(&img.rgb).reshape([h, w, 3]).permute([2, 0, 1]).to_kind(Kind::Float).divide_scalar(255.0).unsqueeze(0))
+        Ok(Tensor::from_slice(&img.rgb)
+            .reshape([h, w, 3])
+            .permute([2, 0, 1])
+            .to_kind(Kind::Float)
+            .divide_scalar(255.0)
+            .unsqueeze(0))
     }
 
     /// The forward's arguments for one observation, each with a batch dimension of 1.
@@ -248,7 +263,9 @@ impl TorchScriptModel {
         let out = match out.size().as_slice() {
             [n, c, 7] if *n == b => out.reshape([b, *c, 7]),
             [n, 7] if *n == b => out.reshape([b, 1, 7]),
-            other => return Err(err(format!("the module returned shape {other:?}; expected [{b}, chunk, 7] or [{b}, 7]"))),
+            other => {
+                return Err(err(format!("the module returned shape {other:?}; expected [{b}, chunk, 7] or [{b}, 7]")));
+            }
         };
         let m = &self.manifest;
         (0..b)

@@ -25,7 +25,8 @@ fn trace(path: &Path) {
     let w = Tensor::rand([1, 3, SIZE as i64, SIZE as i64], (Kind::Float, Device::Cpu));
     let s = Tensor::rand([1, 8], (Kind::Float, Device::Cpu));
     let module = CModule::create_by_tracing("Toy", "forward", &[a, w, s], &mut |x| {
-        let base = x[2].narrow(1, 0, 7) * 0.1 + x[0].mean(Kind::Float) + x[1].select(1, 0).select(1, 0).select(1, 0) * 2.0;
+        let base =
+            x[2].narrow(1, 0, 7) * 0.1 + x[0].mean(Kind::Float) + x[1].select(1, 0).select(1, 0).select(1, 0) * 2.0;
         let steps = Tensor::arange(CHUNK, (Kind::Float, Device::Cpu)).reshape([1, CHUNK, 1]) * 0.01;
         vec![base.unsqueeze(1) + steps]
     })

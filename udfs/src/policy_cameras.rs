@@ -33,7 +33,8 @@ impl PolicyCameras {
     pub fn new(env: &mut LiberoEnv, size: u32) -> Result<Self, SimError> {
         let gl = GL.with(|cell| cell.get_or_init(|| GlContext::new().map(Rc::new).map_err(|e| e.to_string())).clone());
         let gl = gl.map_err(SimError::Other)?;
-        let options = RenderOptions { look: Look::Mujoco323, quality: Quality::Reference, max_width: size, max_height: size };
+        let options =
+            RenderOptions { look: Look::Mujoco323, quality: Quality::Reference, max_width: size, max_height: size };
         let renderer = env.renderer(gl, options)?;
         Ok(PolicyCameras { renderer, size })
     }

@@ -25,7 +25,8 @@ impl Rows {
                     .iter()
                     .zip(b.columns())
                     .map(|(f, c)| {
-                        let v = if c.is_null(r) { String::new() } else { array_value_to_string(c, r).unwrap_or_default() };
+                        let v =
+                            if c.is_null(r) { String::new() } else { array_value_to_string(c, r).unwrap_or_default() };
                         (f.name().clone(), v)
                     })
                     .collect();
@@ -94,7 +95,10 @@ impl Page {
             "<h1>LIBERO evaluation: {}</h1><p class=muted>success definition: <b>{}</b> · runs: {} · every number below is a query over the stored steps (queries/*.sql)</p>",
             esc(&subject.manifest.policy),
             esc(scoring),
-            runs.iter().map(|r| format!("<code>{}</code> ({})", esc(&r.location), esc(&r.manifest.policy))).collect::<Vec<_>>().join(", ")
+            runs.iter()
+                .map(|r| format!("<code>{}</code> ({})", esc(&r.location), esc(&r.manifest.policy)))
+                .collect::<Vec<_>>()
+                .join(", ")
         );
 
         // Warnings derived from the rows: baselines that succeed, harness faults, protocol.
@@ -229,7 +233,9 @@ fn section_results(body: &mut String, runs: &[RunTables]) {
 }
 
 fn section_heatmap(body: &mut String, runs: &[RunTables]) {
-    body.push_str("<h2 id=tasks>Success per task</h2><p class=muted>k/n per task; hover for the instruction and interval.</p>");
+    body.push_str(
+        "<h2 id=tasks>Success per task</h2><p class=muted>k/n per task; hover for the instruction and interval.</p>",
+    );
     for r in runs {
         let rows = Rows::of(&r.tasks).rows;
         let mut suites: BTreeMap<&str, Vec<&BTreeMap<String, String>>> = BTreeMap::new();
@@ -288,7 +294,10 @@ fn section_failures(body: &mut String, runs: &[RunTables]) {
     let h = row_h * groups.len() as f64 + 4.0;
     body.push_str("<div class=legend>");
     for (m, c) in MODE_COLORS {
-        let _ = write!(body, "<span style='display:inline-block;width:10px;height:10px;background:{c}'></span> {m} &nbsp; ");
+        let _ = write!(
+            body,
+            "<span style='display:inline-block;width:10px;height:10px;background:{c}'></span> {m} &nbsp; "
+        );
     }
     body.push_str("</div>");
     let _ = write!(body, "<svg id=failure-plot width={w} height={h} role=img aria-label='failure modes'>");
@@ -357,10 +366,17 @@ fn section_videos(body: &mut String, subject: &RunTables, out: &Path, embed_limi
             Some(bytes) if embedded + bytes.len() as u64 <= embed_limit => {
                 embedded += bytes.len() as u64;
                 let data = base64::engine::general_purpose::STANDARD.encode(&bytes);
-                let _ = write!(body, "<figure><video controls muted src='data:video/mp4;base64,{data}'></video>{caption}</figure>");
+                let _ = write!(
+                    body,
+                    "<figure><video controls muted src='data:video/mp4;base64,{data}'></video>{caption}</figure>"
+                );
             }
             Some(_) => {
-                let _ = write!(body, "<figure><video controls muted src='failures/{}'></video>{caption}</figure>", esc(&file));
+                let _ = write!(
+                    body,
+                    "<figure><video controls muted src='failures/{}'></video>{caption}</figure>",
+                    esc(&file)
+                );
             }
             None => {
                 missing += 1;
@@ -391,12 +407,18 @@ fn section_smoke(body: &mut String, subject: &RunTables, out: &Path) {
     for suite in &suites {
         if let Ok(bytes) = std::fs::read(out.join("smoke").join(format!("{suite}.png"))) {
             let data = base64::engine::general_purpose::STANDARD.encode(&bytes);
-            let _ = write!(body, "<figure><img alt='{0}' src='data:image/png;base64,{data}'><figcaption>{0}</figcaption></figure>", esc(suite));
+            let _ = write!(
+                body,
+                "<figure><img alt='{0}' src='data:image/png;base64,{data}'><figcaption>{0}</figcaption></figure>",
+                esc(suite)
+            );
             shown += 1;
         }
     }
     if shown == 0 {
-        body.push_str("<p class=warn>No smoke pictures in this output folder: run <code>pipeline smoke</code> first.</p>");
+        body.push_str(
+            "<p class=warn>No smoke pictures in this output folder: run <code>pipeline smoke</code> first.</p>",
+        );
     }
 }
 

@@ -28,7 +28,14 @@ fn an_openvla_checkpoint_runs_through_the_pipeline() {
     let s = specs.to_str().unwrap();
     ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0", "--trials", "1", "-o", s]));
 
-    let bad = pipeline(&["run", s, "--out", d.join("bad").to_str().unwrap(), "--policy", &format!("openvla:{}?unnorm=nope", ckpt.display())]);
+    let bad = pipeline(&[
+        "run",
+        s,
+        "--out",
+        d.join("bad").to_str().unwrap(),
+        "--policy",
+        &format!("openvla:{}?unnorm=nope", ckpt.display()),
+    ]);
     let text = String::from_utf8_lossy(&bad.stderr);
     assert!(!bad.status.success() && text.contains("nope") && text.contains("libero_spatial_no_noops"), "{text}");
     assert!(!d.join("bad/episodes").exists(), "an episode started with a wrong unnorm key");
@@ -41,4 +48,51 @@ fn an_openvla_checkpoint_runs_through_the_pipeline() {
     assert!(grippers.iter().all(|g| ["-1.0", "0.0", "1.0"].contains(&g[0].as_str())), "{grippers:?}");
     let identity = sql_rows(&run, "SELECT policy_identity FROM manifest", &[]).concat().join(",");
     assert!(identity.contains("jpeg95") && identity.contains("libero_spatial_no_noops"), "{identity}");
+}
+
+/// `&batch=4` with 4 workers: the episodes' queries share forwards (prompts of different lengths,
+/// left-padded), and each episode's actions equal those of one episode per forward.
+#[test]
+fn batched_openvla_forwards_give_each_episode_its_unbatched_actions() {
+    let d = test_dir("openvla", "batch");
+    let ckpt = tiny_checkpoint(&d);
+    let specs = d.join("specs.parquet");
+    let s = specs.to_str().unwrap();
+    // tasks 0 and 1 of libero_spatial: instructions of different lengths
+    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
+    let actions = |name: &str, options: &str| -> Vec<Vec<String>> {
+        let run = d.join(name);
+        let policy = format!("openvla:{}?unnorm=libero_spatial_no_noops{options}", ckpt.display());
+        ok(pipeline(&[
+            "run",
+            s,
+            "--out",
+            run.to_str().unwrap(),
+            "--policy",
+            &policy,
+            "--max-steps",
+            "3",
+            "--jobs",
+            "4",
+        ]));
+        assert_eq!(
+            sql_rows(&run, "SELECT count(*) FROM episodes WHERE error_kind IS NOT NULL", &[]),
+            [["0"]],
+            "{name}"
+        );
+        sql_rows(
+            &run,
+            "SELECT episode_key, policy_step, action FROM steps WHERE policy_step IS NOT NULL ORDER BY episode_key, step",
+            &[],
+        )
+    };
+    let single = actions("single", "");
+    let batched = actions("batched", "&batch=4");
+    assert_eq!(single.len(), 4 * 3);
+    // `pipeline sql --csv` writes the list column as its text
+    assert!(single[0].join(",").contains("\"[") && single[0].len() == 2 + 7, "{:?}", single[0]);
+    // decoded bins, un-normalised the same way: equal, not merely close
+    assert_eq!(single, batched);
+    let identity = sql_rows(&d.join("batched"), "SELECT policy_identity FROM manifest", &[]).concat().join(",");
+    assert!(identity.contains("max_episodes_per_forward"), "{identity}");
 }

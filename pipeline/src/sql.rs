@@ -27,11 +27,37 @@ pub fn run(args: Args) -> Result<()> {
         if args.csv {
             let mut w = arrow::csv::WriterBuilder::new().with_header(true).build(std::io::stdout());
             for b in &batches {
-                w.write(b)?;
+                w.write(&nested_as_text(b)?)?;
             }
         } else {
             println!("{}", arrow::util::pretty::pretty_format_batches(&batches)?);
         }
         Ok(())
     })
+}
+
+/// CSV has no nested values: list and struct columns (`action`, `eef_pos`, `wilson(..)`) are written
+/// as their text, as the table output shows them (`[0.1, 0.2, ...]`, `{n: 10, ...}`).
+fn nested_as_text(batch: &arrow::record_batch::RecordBatch) -> Result<arrow::record_batch::RecordBatch> {
+    use arrow::array::{ArrayRef, StringArray};
+    use arrow::datatypes::{DataType, Field, Schema};
+    use arrow::util::display::{ArrayFormatter, FormatOptions};
+    use std::sync::Arc;
+    let schema = batch.schema();
+    let mut fields = Vec::new();
+    let mut columns: Vec<ArrayRef> = Vec::new();
+    for (field, column) in schema.fields().iter().zip(batch.columns()) {
+        if field.data_type().is_nested() {
+            let options = FormatOptions::default();
+            let formatter = ArrayFormatter::try_new(column.as_ref(), &options)?;
+            let text: StringArray =
+                (0..column.len()).map(|i| column.is_valid(i).then(|| formatter.value(i).to_string())).collect();
+            fields.push(Field::new(field.name(), DataType::Utf8, true));
+            columns.push(Arc::new(text));
+        } else {
+            fields.push(field.as_ref().clone());
+            columns.push(column.clone());
+        }
+    }
+    Ok(arrow::record_batch::RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)?)
 }

@@ -21,8 +21,10 @@ pub enum PolicySpec {
     /// A TorchScript module with its `model.json` manifest (`torchscript:<file>[?batch=N]`;
     /// with `batch`, the rollout workers' queries share forwards of up to N episodes).
     TorchScript { file: std::path::PathBuf, batch: Option<usize> },
-    /// OpenVLA in process from a Hugging Face checkpoint directory (`openvla:<dir>[?unnorm=<key>]`).
-    OpenVla { dir: std::path::PathBuf, unnorm_key: Option<String> },
+    /// OpenVLA in process from a Hugging Face checkpoint directory
+    /// (`openvla:<dir>[?unnorm=<key>][&batch=N]`; with `batch`, the rollout workers' queries share
+    /// forwards of up to N episodes).
+    OpenVla { dir: std::path::PathBuf, unnorm_key: Option<String>, batch: Option<usize> },
     /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`).
     Openpi { url: String, replan_steps: usize },
 }
@@ -37,7 +39,7 @@ impl PolicySpec {
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
             PolicySpec::ExpertDrop => Box::new(ExpertDrop::new()),
             PolicySpec::TorchScript { file, batch } => load_torchscript(file, *batch)?,
-            PolicySpec::OpenVla { dir, unnorm_key } => load_openvla(dir, unnorm_key.clone())?,
+            PolicySpec::OpenVla { dir, unnorm_key, batch } => load_openvla(dir, unnorm_key.clone(), *batch)?,
             PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
                 replan_steps: *replan_steps,
                 ..OpenpiConfig::new(url.clone())
@@ -65,10 +67,12 @@ impl PolicySpec {
             })?
             .identity()),
             #[cfg(feature = "torch")]
-            PolicySpec::TorchScript { file, batch } => Ok(crate::torchscript::TorchScriptModel::load(file)?.identity(*batch)),
+            PolicySpec::TorchScript { file, batch } => {
+                Ok(crate::torchscript::TorchScriptModel::load(file)?.identity(*batch))
+            }
             #[cfg(feature = "torch")]
-            PolicySpec::OpenVla { dir, unnorm_key } => {
-                crate::openvla::OpenVlaPolicy::identity_of(dir, unnorm_key.as_deref())
+            PolicySpec::OpenVla { dir, unnorm_key, batch } => {
+                crate::openvla::OpenVlaPolicy::identity_of(dir, unnorm_key.as_deref(), *batch)
             }
             _ => Ok(self.identity()),
         }
@@ -93,8 +97,9 @@ impl PolicySpec {
             PolicySpec::NanAt(n) => {
                 serde_json::json!({"kind": "diagnostic", "name": "nan-at", "step": n})
             }
-            PolicySpec::OpenVla { dir, unnorm_key } => serde_json::json!({
+            PolicySpec::OpenVla { dir, unnorm_key, batch } => serde_json::json!({
                 "kind": "openvla", "checkpoint": dir.display().to_string(), "unnorm_key": unnorm_key,
+                "batch": batch,
                 "checkpoint_sha256": "read at run start (resolve_identity)",
             }),
             PolicySpec::TorchScript { file, .. } => serde_json::json!({
@@ -122,11 +127,22 @@ impl fmt::Display for PolicySpec {
             PolicySpec::Expert => f.write_str("expert"),
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
             PolicySpec::ExpertDrop => f.write_str("expert-drop"),
-            PolicySpec::OpenVla { dir, unnorm_key: None } => write!(f, "openvla:{}", dir.display()),
-            PolicySpec::OpenVla { dir, unnorm_key: Some(k) } => write!(f, "openvla:{}?unnorm={k}", dir.display()),
+            PolicySpec::OpenVla { dir, unnorm_key, batch } => {
+                let options: Vec<String> =
+                    [unnorm_key.as_ref().map(|k| format!("unnorm={k}")), batch.map(|b| format!("batch={b}"))]
+                        .into_iter()
+                        .flatten()
+                        .collect();
+                match options.is_empty() {
+                    true => write!(f, "openvla:{}", dir.display()),
+                    false => write!(f, "openvla:{}?{}", dir.display(), options.join("&")),
+                }
+            }
             PolicySpec::TorchScript { file, batch: None } => write!(f, "torchscript:{}", file.display()),
             PolicySpec::TorchScript { file, batch: Some(b) } => write!(f, "torchscript:{}?batch={b}", file.display()),
-            PolicySpec::Openpi { url, replan_steps } if *replan_steps == LIBERO_REPLAN_STEPS => write!(f, "openpi:{url}"),
+            PolicySpec::Openpi { url, replan_steps } if *replan_steps == LIBERO_REPLAN_STEPS => {
+                write!(f, "openpi:{url}")
+            }
             PolicySpec::Openpi { url, replan_steps } => write!(f, "openpi:{url}?replan={replan_steps}"),
         }
     }
@@ -141,24 +157,15 @@ impl FromStr for PolicySpec {
             "expert" => Ok(PolicySpec::Expert),
             "expert-drop" => Ok(PolicySpec::ExpertDrop),
             _ if s.starts_with("openpi:") => parse_openpi(&s["openpi:".len()..]),
-            _ if s.starts_with("openvla:") && s.len() > "openvla:".len() => {
-                let rest = &s["openvla:".len()..];
-                let (dir, query) = rest.split_once('?').map_or((rest, None), |(d, q)| (d, Some(q)));
-                let unnorm_key = match query {
-                    None => None,
-                    Some(q) => match q.strip_prefix("unnorm=") {
-                        Some(k) if !k.is_empty() => Some(k.to_string()),
-                        _ => return Err(format!("openvla:{rest}: the only option is ?unnorm=<dataset key>")),
-                    },
-                };
-                Ok(PolicySpec::OpenVla { dir: dir.into(), unnorm_key })
+            _ if s.starts_with("openvla:") && s.len() > "openvla:".len() => parse_openvla(&s["openvla:".len()..]),
+            _ if s.starts_with("torchscript:") && s.len() > "torchscript:".len() => {
+                parse_torchscript(&s["torchscript:".len()..])
             }
-            _ if s.starts_with("torchscript:") && s.len() > "torchscript:".len() => parse_torchscript(&s["torchscript:".len()..]),
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
-                _ => {
-                    Err(format!("unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>]; diagnostics: nan-at:<policy step>, expert-drop"))
-                }
+                _ => Err(format!(
+                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N]; diagnostics: nan-at:<policy step>, expert-drop"
+                )),
             },
         }
     }
@@ -183,18 +190,60 @@ fn load_torchscript(file: &std::path::Path, batch: Option<usize>) -> Result<Box<
 }
 
 #[cfg(feature = "torch")]
-fn load_openvla(dir: &std::path::Path, unnorm_key: Option<String>) -> Result<Box<dyn Policy>, PolicyError> {
-    Ok(Box::new(crate::openvla::OpenVlaPolicy::load(dir, unnorm_key)?))
+fn load_openvla(
+    dir: &std::path::Path,
+    unnorm_key: Option<String>,
+    batch: Option<usize>,
+) -> Result<Box<dyn Policy>, PolicyError> {
+    use crate::batching::{BatchedPolicy, shared_batcher};
+    use crate::openvla::{OpenVlaBatchModel, OpenVlaPolicy};
+    match batch {
+        None => Ok(Box::new(OpenVlaPolicy::load(dir, unnorm_key)?)),
+        Some(n) => {
+            let name = format!("openvla:{}?unnorm={}", dir.display(), unnorm_key.as_deref().unwrap_or(""));
+            let batcher = shared_batcher(&name, || {
+                let model = OpenVlaBatchModel::load(dir, unnorm_key)?;
+                // Wait briefly for the other workers' queries: they arrive within a physics step.
+                Ok((model, n, std::time::Duration::from_millis(20)))
+            })?;
+            Ok(Box::new(BatchedPolicy::new(batcher, 1, "openvla")))
+        }
+    }
 }
 
 #[cfg(not(feature = "torch"))]
-fn load_openvla(_: &std::path::Path, _: Option<String>) -> Result<Box<dyn Policy>, PolicyError> {
-    Err(PolicyError { policy: "openvla".into(), detail: "this build has no libtorch (built without the `torch` feature)".into() })
+fn load_openvla(_: &std::path::Path, _: Option<String>, _: Option<usize>) -> Result<Box<dyn Policy>, PolicyError> {
+    Err(PolicyError {
+        policy: "openvla".into(),
+        detail: "this build has no libtorch (built without the `torch` feature)".into(),
+    })
 }
 
 #[cfg(not(feature = "torch"))]
 fn load_torchscript(_: &std::path::Path, _: Option<usize>) -> Result<Box<dyn Policy>, PolicyError> {
-    Err(PolicyError { policy: "torchscript".into(), detail: "this build has no libtorch (built without the `torch` feature)".into() })
+    Err(PolicyError {
+        policy: "torchscript".into(),
+        detail: "this build has no libtorch (built without the `torch` feature)".into(),
+    })
+}
+
+/// `<dir>[?unnorm=<key>][&batch=N]` of `openvla:...` (options in any order).
+fn parse_openvla(rest: &str) -> Result<PolicySpec, String> {
+    let (dir, query) = rest.split_once('?').map_or((rest, None), |(d, q)| (d, Some(q)));
+    let (mut unnorm_key, mut batch) = (None, None);
+    for option in query.into_iter().flat_map(|q| q.split('&')) {
+        match option.split_once('=') {
+            Some(("unnorm", k)) if !k.is_empty() => unnorm_key = Some(k.to_string()),
+            Some(("batch", n)) if n.parse::<usize>().is_ok_and(|n| n >= 1) => batch = n.parse().ok(),
+            _ => {
+                return Err(format!(
+                    "openvla:{rest}: unknown option {option:?}; the options are ?unnorm=<dataset key> and \
+                     &batch=N with N >= 1 (episodes per forward)"
+                ));
+            }
+        }
+    }
+    Ok(PolicySpec::OpenVla { dir: dir.into(), unnorm_key, batch })
 }
 
 /// `<file>[?batch=N]` of `torchscript:...`.
@@ -204,7 +253,11 @@ fn parse_torchscript(rest: &str) -> Result<PolicySpec, String> {
         None => None,
         Some(q) => match q.strip_prefix("batch=").map(str::parse::<usize>) {
             Some(Ok(n)) if n >= 1 => Some(n),
-            _ => return Err(format!("torchscript:{rest}: the only option is ?batch=N with N >= 1 (episodes per forward)")),
+            _ => {
+                return Err(format!(
+                    "torchscript:{rest}: the only option is ?batch=N with N >= 1 (episodes per forward)"
+                ));
+            }
         },
     };
     Ok(PolicySpec::TorchScript { file: file.into(), batch })
@@ -220,7 +273,11 @@ fn parse_openpi(rest: &str) -> Result<PolicySpec, String> {
         None => LIBERO_REPLAN_STEPS,
         Some(q) => match q.strip_prefix("replan=").map(str::parse::<usize>) {
             Some(Ok(n)) if n >= 1 => n,
-            _ => return Err(format!("openpi:{rest}: the only option is ?replan=N with N >= 1 (actions executed per chunk)")),
+            _ => {
+                return Err(format!(
+                    "openpi:{rest}: the only option is ?replan=N with N >= 1 (actions executed per chunk)"
+                ));
+            }
         },
     };
     Ok(PolicySpec::Openpi { url: url.to_string(), replan_steps })

@@ -115,6 +115,25 @@ fn tiny_openvla_matches_the_python_reference() {
     // the tiny model decodes to several distinct bins, so the comparison is not vacuous
     assert!(pred.bins.iter().collect::<std::collections::BTreeSet<_>>().len() >= 3);
 
+    // one forward for several episodes: prompts of different lengths left-padded and masked; each
+    // row must decode what it decodes alone
+    let images: Vec<RgbImage> = (0..3u8)
+        .map(|k| RgbImage::new(224, 224, image.rgb.iter().map(|&v| v.wrapping_add(k * 40)).collect()).unwrap())
+        .collect();
+    let instructions = [instruction, "open the top drawer of the cabinet", "put the bowl on the plate"];
+    let queries: Vec<(&RgbImage, &str)> = images.iter().zip(instructions).collect();
+    let batched = model.predict_actions(&queries, Some(unnorm_key)).unwrap();
+    let lengths: std::collections::BTreeSet<usize> = batched.iter().map(|p| p.input_ids.len()).collect();
+    assert_eq!(lengths.len(), 3, "the prompts must differ in length so that padding is exercised: {lengths:?}");
+    for ((img, instr), b) in queries.iter().zip(&batched) {
+        let alone = model.predict_action(img, instr, Some(unnorm_key)).unwrap();
+        let d = max_abs_diff(&alone.step_logits, &b.step_logits);
+        eprintln!("batch of 3 vs alone ({instr:?}, {} prompt tokens): logits {d:.3e}", b.input_ids.len());
+        assert!(d <= 1e-5, "{instr:?}: batched logits differ by {d}");
+        assert_eq!(alone.tokens, b.tokens, "{instr:?}: batched tokens");
+        assert_eq!(alone.action, b.action, "{instr:?}: batched action");
+    }
+
     // errors that name what to fix
     let e = model.predict_action(&image, instruction, Some("libero_nope")).unwrap_err();
     assert!(e.to_string().contains(unnorm_key), "{e}");

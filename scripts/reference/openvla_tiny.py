@@ -146,18 +146,21 @@ def make_featurizer(timm_id: str, kw: dict) -> torch.nn.Module:
 
 
 class TinyOpenVLA(torch.nn.Module):
-    def __init__(self):
+    """The Prismatic architecture at the tiny sizes above, or at any others (openvla_bench.py builds
+    the full 7B one with the timm defaults and Llama-2-7B's sizes)."""
+
+    def __init__(self, dino_kw=DINO_KW, siglip_kw=SIGLIP_KW, llm_kw=LLM):
         super().__init__()
         self.vision_backbone = torch.nn.Module()
-        self.vision_backbone.featurizer = make_featurizer(DINO_ID, DINO_KW)
-        self.vision_backbone.fused_featurizer = make_featurizer(SIGLIP_ID, SIGLIP_KW)
-        vdim = DINO_KW["embed_dim"] + SIGLIP_KW["embed_dim"]
-        llm = LLM["hidden_size"]
+        self.vision_backbone.featurizer = make_featurizer(DINO_ID, dino_kw)
+        self.vision_backbone.fused_featurizer = make_featurizer(SIGLIP_ID, siglip_kw)
+        vdim = self.vision_backbone.featurizer.embed_dim + self.vision_backbone.fused_featurizer.embed_dim
+        llm = llm_kw["hidden_size"]
         self.projector = torch.nn.Module()
         self.projector.fc1 = torch.nn.Linear(vdim, 4 * vdim)
         self.projector.fc2 = torch.nn.Linear(4 * vdim, llm)
         self.projector.fc3 = torch.nn.Linear(llm, llm)
-        self.language_model = LlamaForCausalLM(LlamaConfig(**LLM, attn_implementation="eager"))
+        self.language_model = LlamaForCausalLM(LlamaConfig(**llm_kw, attn_implementation="eager"))
 
     def vision(self, pixel_values):
         img, img_fused = torch.split(pixel_values, [3, 3], dim=1)
@@ -176,16 +179,17 @@ def randomize(model: TinyOpenVLA, gen: torch.Generator):
     so that greedy decoding lands on action bins, as a trained OpenVLA does."""
     with torch.no_grad():
         for name, p in model.named_parameters():
+            randn = partial(torch.randn, p.shape, generator=gen, device=p.device, dtype=p.dtype)
             if p.dim() == 1 and ("norm" in name or name.endswith("scale_factor")):
-                p.copy_(1.0 + 0.2 * torch.randn(p.shape, generator=gen))
+                p.copy_(1.0 + 0.2 * randn())
             elif p.dim() == 1:
-                p.copy_(0.1 * torch.randn(p.shape, generator=gen))
+                p.copy_(0.1 * randn())
             else:
                 fan_in = p.shape[1] if p.dim() == 2 else int(np.prod(p.shape[1:]))
                 std = 1.0 / np.sqrt(fan_in) if p.dim() in (2, 4) else 0.5
                 if name.endswith("embed_tokens.weight"):
                     std = 1.0
-                p.copy_(std * torch.randn(p.shape, generator=gen))
+                p.copy_(std * randn())
         head = model.language_model.lm_head.weight
         head[32000 - N_ACTION_BINS:32000] *= 3.0
 
@@ -205,18 +209,21 @@ def norm_stats():
     return {UNNORM_KEY: {"action": action, "proprio": proprio, "num_transitions": 1000, "num_trajectories": 10}}
 
 
-def save_checkpoint(model: TinyOpenVLA, out_dir: str, stats: dict):
-    state = {k: v.detach().contiguous().clone() for k, v in model.state_dict().items()}
+def save_checkpoint(model: TinyOpenVLA, out_dir: str, stats: dict, n_shards: int = 2, timm_kwargs=(DINO_KW, SIGLIP_KW)):
+    state = model.state_dict()
     keys = sorted(state)
-    half = len(keys) // 2
-    shards = [keys[:half], keys[half:]]
+    per = -(-len(keys) // n_shards)
+    shards = [keys[i:i + per] for i in range(0, len(keys), per)]
     weight_map, total = {}, 0
     for i, shard in enumerate(shards):
         fname = f"model-{i + 1:05d}-of-{len(shards):05d}.safetensors"
-        save_file({k: state[k] for k in shard}, os.path.join(out_dir, fname), metadata={"format": "pt"})
+        # on the host, one shard at a time (the 7B model's weights live on the GPU)
+        tensors = {k: state[k].detach().to("cpu", copy=True).contiguous() for k in shard}
+        save_file(tensors, os.path.join(out_dir, fname), metadata={"format": "pt"})
         for k in shard:
             weight_map[k] = fname
             total += state[k].numel() * state[k].element_size()
+        del tensors
     with open(os.path.join(out_dir, "model.safetensors.index.json"), "w") as f:
         json.dump({"metadata": {"total_size": total}, "weight_map": weight_map}, f, indent=2)
     # As PretrainedConfig.to_diff_dict writes a nested config (the released config.json's text_config
@@ -237,7 +244,7 @@ def save_checkpoint(model: TinyOpenVLA, out_dir: str, stats: dict):
         "timm_model_ids": [DINO_ID, SIGLIP_ID],
         "timm_override_act_layers": [None, None],
         # Not in OpenVLA's config: the tiny model's overrides of the timm model functions' defaults.
-        "timm_model_kwargs": [DINO_KW, SIGLIP_KW],
+        **({"timm_model_kwargs": list(timm_kwargs)} if timm_kwargs else {}),
         "image_sizes": [224, 224],
         "text_config": text_config,
         "llm_max_length": 2048,
@@ -246,7 +253,7 @@ def save_checkpoint(model: TinyOpenVLA, out_dir: str, stats: dict):
         "n_action_bins": N_ACTION_BINS,
         "norm_stats": stats,
         "output_projector_states": False,
-        "torch_dtype": "float32",
+        "torch_dtype": str(next(model.parameters()).dtype).replace("torch.", ""),
     }
     with open(os.path.join(out_dir, "config.json"), "w") as f:
         json.dump(config, f, indent=2)
@@ -283,7 +290,9 @@ def predict(model: TinyOpenVLA, tokenizer, image: np.ndarray, instruction: str, 
     input_ids = tokenizer(prompt, return_tensors="pt").input_ids
     if not torch.all(input_ids[:, -1] == 29871):
         input_ids = torch.cat((input_ids, torch.tensor([[29871]], dtype=torch.long)), dim=1)
+    param = next(model.parameters())
     pixel_values = pixel_values_of(image)
+    input_ids, pixel_values = input_ids.to(param.device), pixel_values.to(param.device, param.dtype)
     patches = model.vision(pixel_values)
     projected = model.project(patches)
     lm = model.language_model
@@ -294,11 +303,11 @@ def predict(model: TinyOpenVLA, tokenizer, image: np.ndarray, instruction: str, 
     logits, tokens = [], []
     for step in range(action_dim):
         last = out.logits[0, -1].float()
-        logits.append(last.numpy().copy())
+        logits.append(last.cpu().numpy().copy())
         tok = int(torch.argmax(last))
         tokens.append(tok)
         if step + 1 < action_dim:
-            out = lm(input_ids=torch.tensor([[tok]]), past_key_values=out.past_key_values, use_cache=True)
+            out = lm(input_ids=torch.tensor([[tok]], device=param.device), past_key_values=out.past_key_values, use_cache=True)
     vocab_size = LLM["vocab_size"] - PAD_TO_MULTIPLE_OF
     bins = np.linspace(-1, 1, N_ACTION_BINS)
     centers = (bins[:-1] + bins[1:]) / 2.0
@@ -308,14 +317,15 @@ def predict(model: TinyOpenVLA, tokenizer, image: np.ndarray, instruction: str, 
     mask = np.array(a["mask"], dtype=bool)
     hi, lo = np.array(a["q99"]), np.array(a["q01"])
     action = np.where(mask, 0.5 * (normalized + 1) * (hi - lo) + lo, normalized)
-    np.save(os.path.join(ref_dir, "input_ids.npy"), input_ids.numpy().astype(np.int64))
-    np.save(os.path.join(ref_dir, "pixel_values.npy"), pixel_values.numpy())
-    np.save(os.path.join(ref_dir, "patch_features.npy"), patches.numpy())
-    np.save(os.path.join(ref_dir, "projected.npy"), projected.numpy())
+    host = lambda t: t.float().cpu().numpy()  # noqa: E731  (bf16 has no numpy dtype)
+    np.save(os.path.join(ref_dir, "input_ids.npy"), input_ids.cpu().numpy().astype(np.int64))
+    np.save(os.path.join(ref_dir, "pixel_values.npy"), host(pixel_values))
+    np.save(os.path.join(ref_dir, "patch_features.npy"), host(patches))
+    np.save(os.path.join(ref_dir, "projected.npy"), host(projected))
     np.save(os.path.join(ref_dir, "step_logits.npy"), np.stack(logits).astype(np.float32))
     expected = {
         "instruction": instruction, "prompt": prompt, "unnorm_key": UNNORM_KEY,
-        "input_ids": input_ids[0].tolist(), "tokens": tokens, "bins": disc.tolist(),
+        "input_ids": input_ids[0].tolist(), "dtype": str(param.dtype), "device": str(param.device), "tokens": tokens, "bins": disc.tolist(),
         "normalized_action": normalized.tolist(), "action": action.tolist(),
         "versions": {"torch": torch.__version__, "timm": timm.__version__,
                      "transformers": sys.modules["transformers"].__version__},

@@ -29,10 +29,18 @@ pub struct Llama {
     inv_freq: Tensor,
 }
 
-/// Keys and values of the positions seen so far, per layer (`[B, kv_heads, T, head_dim]`).
+/// Keys and values of the positions seen so far, per layer (`[B, kv_heads, T, head_dim]`), and
+/// each row's left padding.
+///
+/// A batch of prompts of different lengths is left-padded to one length, as transformers pads for
+/// generation: a row's first `pad` positions are masked out as keys, and its positions count from
+/// its first real token (transformers' `position_ids = cumsum(attention_mask) - 1`), so each row
+/// computes what it would alone, up to the order of floating-point sums.
 pub struct KvCache {
     kv: Vec<Option<(Tensor, Tensor)>>,
     len: i64,
+    /// `[B]` int64 left padding per row; `None` when no row is padded.
+    pad: Option<Tensor>,
 }
 
 impl Llama {
@@ -67,8 +75,11 @@ impl Llama {
         Ok(Llama { cfg: cfg.clone(), embed, layers, norm: w.take(&format!("{p}norm.weight"))?, lm_head, inv_freq })
     }
 
-    pub fn new_cache(&self) -> KvCache {
-        KvCache { kv: (0..self.layers.len()).map(|_| None).collect(), len: 0 }
+    /// A cache for rows whose first `left_pad[b]` positions are padding (all zero: no padding).
+    pub fn new_cache(&self, left_pad: &[i64]) -> KvCache {
+        let device = self.embed.device();
+        let pad = left_pad.iter().any(|&p| p > 0).then(|| Tensor::from_slice(left_pad).to_device(device));
+        KvCache { kv: (0..self.layers.len()).map(|_| None).collect(), len: 0, pad }
     }
 
     /// `[B, T]` token ids → `[B, T, hidden]`.
@@ -84,8 +95,8 @@ impl Llama {
         w * h.to_kind(kind)
     }
 
-    /// Runs `embeds` `[1, T, hidden]` after the cached positions; returns the logits of the last one
-    /// (`[vocab]`, f32).
+    /// Runs `embeds` `[B, T, hidden]` after the cached positions; returns the logits of each row's
+    /// last position (`[B, vocab]`, f32).
     // tch's `x += y` is in place (`add_`); these new tensors are built without touching their inputs
     #[allow(clippy::assign_op_pattern)]
     pub fn forward(&self, embeds: &Tensor, cache: &mut KvCache) -> Tensor {
@@ -93,26 +104,38 @@ impl Llama {
         let device = embeds.device();
         let (nh, nkv) = (self.cfg.num_attention_heads, self.cfg.num_key_value_heads);
         let hd = self.cfg.hidden_size / nh;
-        let pos = Tensor::arange_start(cache.len, cache.len + t, (Kind::Int64, device)).to_kind(Kind::Float);
-        let freqs = pos.unsqueeze(1).matmul(&self.inv_freq.unsqueeze(0));
-        let emb = Tensor::cat(&[&freqs, &freqs], -1);
+        let total = cache.len + t;
+        // positions `[B, T]`: from each row's first real token (padding positions clamp to 0)
+        let pos = Tensor::arange_start(cache.len, total, (Kind::Int64, device)).unsqueeze(0);
+        let pos = match &cache.pad {
+            Some(pad) => (pos - pad.unsqueeze(1)).clamp_min(0),
+            None => pos.expand([b, t], false),
+        }
+        .to_kind(Kind::Float);
+        let freqs = pos.unsqueeze(-1) * self.inv_freq.view([1, 1, -1]);
+        let emb = Tensor::cat(&[&freqs, &freqs], -1).unsqueeze(1);
         let (cos, sin) = (emb.cos().to_kind(embeds.kind()), emb.sin().to_kind(embeds.kind()));
         let rope = |x: &Tensor| {
             let x1 = x.narrow(-1, 0, hd / 2);
             let x2 = x.narrow(-1, hd / 2, hd / 2);
             x * &cos + Tensor::cat(&[&x2.neg(), &x1], -1) * &sin
         };
-        let total = cache.len + t;
-        let mask = (t > 1).then(|| {
-            // transformers fills with torch.finfo(dtype).min
+        // `[B or 1, 1, T, total]`: a later key, or a row's padding, gets torch.finfo(dtype).min as
+        // transformers adds it (filled once per position, so a fully masked padding row stays finite)
+        let mask = (t > 1 || cache.pad.is_some()).then(|| {
             let min = match embeds.kind() {
                 Kind::BFloat16 => -3.3895313892515355e38,
                 Kind::Half => -65504.0,
                 Kind::Double => f64::MIN,
                 _ => f64::from(f32::MIN),
             };
-            let full = Tensor::full([t, total], min, (embeds.kind(), device));
-            full.triu(cache.len + 1)
+            let keys = Tensor::arange(total, (Kind::Int64, device));
+            let queries = Tensor::arange_start(cache.len, total, (Kind::Int64, device));
+            let mut masked = keys.unsqueeze(0).gt_tensor(&queries.unsqueeze(1)).unsqueeze(0);
+            if let Some(pad) = &cache.pad {
+                masked = masked.logical_or(&keys.view([1, 1, -1]).lt_tensor(&pad.view([-1, 1, 1])));
+            }
+            Tensor::zeros(masked.size(), (embeds.kind(), device)).masked_fill(&masked, min).unsqueeze(1)
         });
         let mut x = embeds.shallow_clone();
         for (li, l) in self.layers.iter().enumerate() {
@@ -144,6 +167,6 @@ impl Llama {
         cache.len = total;
         let last = x.narrow(1, t - 1, 1);
         let last = self.rms_norm(&last, &self.norm);
-        last.linear(&self.lm_head, None::<Tensor>).to_kind(Kind::Float).view([-1])
+        last.linear(&self.lm_head, None::<Tensor>).to_kind(Kind::Float).view([b, -1])
     }
 }

@@ -35,7 +35,7 @@ use crate::PolicyError;
 use crate::preprocess::RgbImage;
 pub use action::ActionBins;
 pub use config::OpenVlaConfig;
-pub use policy::OpenVlaPolicy;
+pub use policy::{OpenVlaBatchModel, OpenVlaPolicy};
 use std::path::{Path, PathBuf};
 use tch::{Device, Kind, Tensor};
 
@@ -172,34 +172,75 @@ impl OpenVlaModel {
         instruction: &str,
         unnorm_key: Option<&str>,
     ) -> Result<OpenVlaPrediction, OpenVlaError> {
+        let mut batch = self.predict_actions(&[(image, instruction)], unnorm_key)?;
+        Ok(batch.remove(0))
+    }
+
+    /// [`Self::predict_action`] for several (image, instruction) pairs in one forward: the vision
+    /// tower runs on the stacked images, the prompts (of different lengths) are left-padded to one
+    /// length, and each decode step is one forward of the whole batch. Each row's result is its
+    /// result alone, up to the order of floating-point sums.
+    pub fn predict_actions(
+        &self,
+        queries: &[(&RgbImage, &str)],
+        unnorm_key: Option<&str>,
+    ) -> Result<Vec<OpenVlaPrediction>, OpenVlaError> {
         let stats = self.config.norm_stats.action(unnorm_key).map_err(|e| bad(e.to_string()))?.clone();
-        let pixel_values = self.pixel_values(image)?;
-        let input_ids = self.input_ids(instruction)?;
-        let (_, projected) = self.vision_features(&pixel_values);
+        if queries.is_empty() {
+            return Ok(Vec::new());
+        }
+        let mut pixel_values = Vec::with_capacity(queries.len());
+        let mut input_ids = Vec::with_capacity(queries.len());
+        for (image, instruction) in queries {
+            pixel_values.push(self.pixel_values(image)?);
+            input_ids.push(self.input_ids(instruction)?);
+        }
+        let (_, projected) = self.vision_features(&Tensor::cat(&pixel_values, 0));
+        let longest = input_ids.iter().map(Vec::len).max().unwrap_or(0);
+        let left_pad: Vec<i64> = input_ids.iter().map(|ids| (longest - ids.len()) as i64).collect();
         let (tokens, step_logits) = tch::no_grad(|| {
-            let ids = Tensor::from_slice(&input_ids).view([1, -1]).to_device(self.device);
-            let emb = self.llm.embed(&ids);
-            let n = emb.size()[1];
-            let mm = Tensor::cat(&[emb.narrow(1, 0, 1), projected, emb.narrow(1, 1, n - 1)], 1);
-            let mut cache = self.llm.new_cache();
-            let mut logits = self.llm.forward(&mm, &mut cache);
+            // per row: [padding, <s>, image patches, prompt tokens]
+            let rows: Vec<Tensor> = input_ids
+                .iter()
+                .zip(&left_pad)
+                .enumerate()
+                .map(|(b, (ids, &pad))| {
+                    let ids = Tensor::from_slice(ids).view([1, -1]).to_device(self.device);
+                    let emb = self.llm.embed(&ids);
+                    let (n, width) = (emb.size()[1], emb.size()[2]);
+                    let padding = Tensor::zeros([1, pad, width], (emb.kind(), self.device));
+                    let patches = projected.narrow(0, b as i64, 1);
+                    Tensor::cat(&[padding, emb.narrow(1, 0, 1), patches, emb.narrow(1, 1, n - 1)], 1)
+                })
+                .collect();
+            let mut cache = self.llm.new_cache(&left_pad);
+            let mut logits = self.llm.forward(&Tensor::cat(&rows, 0), &mut cache);
             let (mut tokens, mut all) = (Vec::new(), Vec::new());
             for step in 0..stats.dim() {
-                let tok = logits.argmax(0, false).int64_value(&[]);
-                tokens.push(tok);
+                let next = logits.argmax(-1, false);
+                tokens.push(Vec::<i64>::try_from(&next.to_device(Device::Cpu)).expect("argmax is int64"));
                 if step + 1 < stats.dim() {
-                    let next = Tensor::from_slice(&[tok]).view([1, 1]).to_device(self.device);
-                    let following = self.llm.forward(&self.llm.embed(&next), &mut cache);
+                    let following = self.llm.forward(&self.llm.embed(&next.view([-1, 1])), &mut cache);
                     all.push(std::mem::replace(&mut logits, following));
                 } else {
                     all.push(logits.shallow_clone());
                 }
             }
-            (tokens, Tensor::stack(&all, 0))
+            // `[B, action_dim, vocab]`
+            (tokens, Tensor::stack(&all, 1))
         });
-        let bins: Vec<usize> = tokens.iter().map(|&t| self.bins.bin(t)).collect();
-        let normalized_action: Vec<f64> = bins.iter().map(|&b| self.bins.center(b)).collect();
-        let action = stats.unnormalize(&normalized_action);
-        Ok(OpenVlaPrediction { input_ids, tokens, bins, normalized_action, action, step_logits })
+        let predictions = input_ids
+            .into_iter()
+            .enumerate()
+            .map(|(b, input_ids)| {
+                let tokens: Vec<i64> = tokens.iter().map(|step| step[b]).collect();
+                let bins: Vec<usize> = tokens.iter().map(|&t| self.bins.bin(t)).collect();
+                let normalized_action: Vec<f64> = bins.iter().map(|&b| self.bins.center(b)).collect();
+                let action = stats.unnormalize(&normalized_action);
+                let step_logits = step_logits.get(b as i64);
+                OpenVlaPrediction { input_ids, tokens, bins, normalized_action, action, step_logits }
+            })
+            .collect();
+        Ok(predictions)
     }
 }

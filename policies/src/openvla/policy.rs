@@ -4,7 +4,8 @@
 //! 0.9), one action per query (no chunking), un-normalised with the checkpoint's statistics of
 //! `unnorm_key`, gripper [0, 1] → sign → inverted. bf16 on a GPU, fp32 on a CPU.
 
-use super::OpenVlaModel;
+use super::{OpenVlaModel, OpenVlaPrediction};
+use crate::batching::BatchModel;
 use crate::postprocess::Gripper;
 use crate::preprocess::{ImagePipeline, RgbImage};
 use crate::{Action, Observation, Policy, PolicyError};
@@ -49,7 +50,11 @@ impl OpenVlaPolicy {
 
     /// Identity for the run manifest, from the checkpoint's files without loading its weights
     /// (once per run, at its start; each worker then loads the model itself). Checks the key.
-    pub fn identity_of(dir: &Path, unnorm_key: Option<&str>) -> Result<serde_json::Value, PolicyError> {
+    pub fn identity_of(
+        dir: &Path,
+        unnorm_key: Option<&str>,
+        batch: Option<usize>,
+    ) -> Result<serde_json::Value, PolicyError> {
         let config = super::OpenVlaConfig::load(dir).map_err(|e| err(e.to_string()))?;
         check_unnorm_key(&config, unnorm_key)?;
         Ok(serde_json::json!({
@@ -63,6 +68,10 @@ impl OpenVlaPolicy {
             "decoding": "greedy, 7 action tokens from the last 256 vocabulary bins",
             "gripper": "[0,1] -> 2g-1 -> sign -> inverted",
             "chunking": {"predicted": 1, "executed": 1},
+            "batch": batch.map_or_else(
+                || serde_json::json!("one episode per forward"),
+                |n| serde_json::json!({"max_episodes_per_forward": n, "padding": "left, masked"})
+            ),
             "dtype": format!("{:?}", device_and_dtype().1),
         }))
     }
@@ -95,19 +104,73 @@ impl Policy for OpenVlaPolicy {
     }
 
     fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
-        let cam = &obs.images.as_ref().ok_or_else(|| err("the rollout gave no camera images"))?.agentview;
-        let image = RgbImage::new(cam.width, cam.height, cam.rgb.clone())
-            .and_then(|i| ImagePipeline::OPENVLA.apply(&i))
-            .map_err(|e| err(format!("image preprocessing: {e}")))?;
+        let image = model_image(obs)?;
         let p = self
             .model
             .predict_action(&image, &self.instruction, self.unnorm_key.as_deref())
             .map_err(|e| err(e.to_string()))?;
-        if p.action.len() != 7 {
-            return Err(err(format!("the checkpoint predicts {} action dimensions, LIBERO needs 7", p.action.len())));
-        }
-        let mut a: Action = std::array::from_fn(|i| p.action[i] as f32);
-        a[6] = Gripper::OPENVLA.apply(p.action[6]) as f32;
-        Ok(a)
+        env_action(&p)
+    }
+}
+
+/// The agentview camera after OpenVLA's image preprocessing.
+fn model_image(obs: &Observation) -> Result<RgbImage, PolicyError> {
+    let cam = &obs.images.as_ref().ok_or_else(|| err("the rollout gave no camera images"))?.agentview;
+    RgbImage::new(cam.width, cam.height, cam.rgb.clone())
+        .and_then(|i| ImagePipeline::OPENVLA.apply(&i))
+        .map_err(|e| err(format!("image preprocessing: {e}")))
+}
+
+/// The un-normalised prediction as a LIBERO action (gripper sign inverted).
+fn env_action(p: &OpenVlaPrediction) -> Result<Action, PolicyError> {
+    if p.action.len() != 7 {
+        return Err(err(format!("the checkpoint predicts {} action dimensions, LIBERO needs 7", p.action.len())));
+    }
+    let mut a: Action = std::array::from_fn(|i| p.action[i] as f32);
+    a[6] = Gripper::OPENVLA.apply(p.action[6]) as f32;
+    Ok(a)
+}
+
+/// OpenVLA behind a [`crate::batching::Batcher`] (`openvla:<dir>?batch=N`): the rollout workers'
+/// queries answered with one forward ([`OpenVlaModel::predict_actions`]).
+pub struct OpenVlaBatchModel {
+    model: OpenVlaModel,
+    unnorm_key: Option<String>,
+}
+
+impl OpenVlaBatchModel {
+    pub fn load(dir: &Path, unnorm_key: Option<String>) -> Result<Self, PolicyError> {
+        let OpenVlaPolicy { model, unnorm_key, .. } = OpenVlaPolicy::load(dir, unnorm_key)?;
+        Ok(OpenVlaBatchModel { model, unnorm_key })
+    }
+}
+
+impl BatchModel for OpenVlaBatchModel {
+    fn predict_batch(&mut self, requests: &[(String, Observation)]) -> Vec<Result<Vec<Action>, String>> {
+        // A request whose image cannot be prepared fails alone; the rest share the forward.
+        let images: Vec<Result<RgbImage, PolicyError>> = requests.iter().map(|(_, obs)| model_image(obs)).collect();
+        let ready: Vec<(&RgbImage, &str)> = images
+            .iter()
+            .zip(requests)
+            .filter_map(|(image, (instruction, _))| image.as_ref().ok().map(|i| (i, instruction.as_str())))
+            .collect();
+        let mut predictions = match self.model.predict_actions(&ready, self.unnorm_key.as_deref()) {
+            Ok(p) => p.into_iter(),
+            Err(e) => return requests.iter().map(|_| Err(e.to_string())).collect(),
+        };
+        images
+            .iter()
+            .map(|image| match image {
+                Err(e) => Err(e.to_string()),
+                Ok(_) => {
+                    let p = predictions.next().ok_or_else(|| "the batch returned too few predictions".to_string())?;
+                    env_action(&p).map(|a| vec![a]).map_err(|e| e.to_string())
+                }
+            })
+            .collect()
+    }
+
+    fn camera_size(&self) -> Option<u32> {
+        Some(RENDER_SIZE)
     }
 }

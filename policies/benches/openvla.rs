@@ -1,0 +1,189 @@
+//! OpenVLA's per-action latency and batched throughput, in process on libtorch.
+//!
+//! ```text
+//! cargo bench -p libero-policies --bench openvla -- --checkpoint DIR [--batch 1,8,32] [--iters 10]
+//!     [--warmup 2] [--device cuda|cpu] [--json OUT.json]
+//! ```
+//!
+//! One timed call is [`OpenVlaModel::predict_actions`] on B (image, instruction) pairs: the fused
+//! vision tower on B images, the prefill of B left-padded prompts (LIBERO instructions of different
+//! lengths), and 7 greedy decode steps, the tokens read back to the host after each (as the rollout
+//! needs them). Per-action latency is the call's time at B = 1; throughput is B actions per call.
+//! The images are random (the arithmetic does not depend on pixel values), the weights are the
+//! checkpoint's: the full-size run uses a random-weight bf16 checkpoint of the 7B architecture
+//! written by `scripts/reference/openvla_bench.py`, which also times the Python reference's forward.
+//! Without `--checkpoint` (as under a plain `cargo bench`) it says what it needs and exits.
+
+use libero_policies::openvla::OpenVlaModel;
+use libero_policies::preprocess::RgbImage;
+use std::path::PathBuf;
+use std::time::Instant;
+use tch::{Device, Kind};
+
+/// LIBERO instructions of different lengths (one per suite and a long libero_10 one).
+const INSTRUCTIONS: [&str; 4] = [
+    "pick up the black bowl between the plate and the ramekin and place it on the plate",
+    "pick up the alphabet soup and place it in the basket",
+    "open the middle drawer of the cabinet",
+    "put both the alphabet soup and the tomato sauce in the basket",
+];
+
+struct Args {
+    checkpoint: Option<PathBuf>,
+    batches: Vec<usize>,
+    iters: usize,
+    warmup: usize,
+    device: Device,
+    json: Option<PathBuf>,
+}
+
+fn parse_args() -> Result<Args, String> {
+    let mut a = Args {
+        checkpoint: std::env::var_os("LIBERO_OPENVLA_BENCH_CHECKPOINT").map(PathBuf::from),
+        batches: vec![1, 8, 32],
+        iters: 10,
+        warmup: 2,
+        device: Device::cuda_if_available(),
+        json: None,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(flag) = it.next() {
+        let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
+        match flag.as_str() {
+            "--checkpoint" => a.checkpoint = Some(value()?.into()),
+            "--batch" => {
+                a.batches = value()?
+                    .split(',')
+                    .map(|b| b.parse().ok().filter(|&b: &usize| b >= 1).ok_or(format!("--batch: bad size {b:?}")))
+                    .collect::<Result<_, _>>()?
+            }
+            "--iters" => a.iters = value()?.parse().map_err(|e| format!("--iters: {e}"))?,
+            "--warmup" => a.warmup = value()?.parse().map_err(|e| format!("--warmup: {e}"))?,
+            "--device" => {
+                a.device = match value()?.as_str() {
+                    "cuda" => Device::Cuda(0),
+                    "cpu" => Device::Cpu,
+                    d => return Err(format!("--device: {d:?} is not cuda or cpu")),
+                }
+            }
+            "--json" => a.json = Some(value()?.into()),
+            // cargo bench passes --bench to every bench binary
+            "--bench" => {}
+            other => return Err(format!("unknown argument {other:?}")),
+        }
+    }
+    Ok(a)
+}
+
+/// Where the checkpoint comes with the Python reference's prediction (`reference/expected.json`,
+/// `image.npy`, `step_logits.npy`, as openvla_tiny.py and openvla_bench.py write them): the same
+/// prediction here, tokens and logits compared.
+fn compare_with_reference(model: &OpenVlaModel, dir: &std::path::Path, unnorm: Option<&str>) -> serde_json::Value {
+    let reference = dir.join("reference");
+    let Ok(text) = std::fs::read_to_string(reference.join("expected.json")) else {
+        return serde_json::Value::Null;
+    };
+    let expected: serde_json::Value = serde_json::from_str(&text).expect("expected.json");
+    let image = tch::Tensor::read_npy(reference.join("image.npy")).expect("image.npy");
+    let size = image.size();
+    let rgb: Vec<u8> = Vec::try_from(image.flatten(0, -1)).expect("uint8 image");
+    let image = RgbImage::new(size[1] as u32, size[0] as u32, rgb).expect("image");
+    let instruction = expected["instruction"].as_str().expect("instruction");
+    let p = model.predict_action(&image, instruction, unnorm).unwrap_or_else(|e| panic!("{e}"));
+    let tokens: Vec<i64> = expected["tokens"].as_array().expect("tokens").iter().filter_map(|t| t.as_i64()).collect();
+    let ref_logits = tch::Tensor::read_npy(reference.join("step_logits.npy")).expect("step_logits.npy");
+    let diff = (p.step_logits.to_device(Device::Cpu).to_kind(Kind::Double) - ref_logits.to_kind(Kind::Double)).abs();
+    let same = p.tokens.iter().zip(&tokens).filter(|(a, b)| a == b).count();
+    let summary = serde_json::json!({
+        "reference_dtype": expected["dtype"], "tokens_equal": same, "tokens": tokens.len(),
+        "first_step_logits_max_abs_diff": diff.get(0).max().double_value(&[]),
+        "logits_max_abs_diff": diff.max().double_value(&[]),
+        "logits_range": ref_logits.abs().max().double_value(&[]),
+        "rust_tokens": p.tokens, "python_tokens": tokens,
+    });
+    println!("  vs the Python reference (B=1, one image): {summary}");
+    summary
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+fn main() {
+    let args = parse_args().unwrap_or_else(|e| {
+        eprintln!("openvla bench: {e}");
+        std::process::exit(2)
+    });
+    let Some(dir) = args.checkpoint.clone() else {
+        println!(
+            "openvla bench: needs a checkpoint (--checkpoint DIR or LIBERO_OPENVLA_BENCH_CHECKPOINT); the 7B run is \
+             scripts/reference/openvla_bench.py's (see README, 'OpenVLA speed'); skipped"
+        );
+        return;
+    };
+    if args.device.is_cuda() && !tch::Cuda::is_available() {
+        eprintln!("openvla bench: --device cuda, but libtorch sees no CUDA device (is libtorch_cuda.so loaded?)");
+        std::process::exit(2);
+    }
+    let kind = if args.device.is_cuda() { Kind::BFloat16 } else { Kind::Float };
+    let t0 = Instant::now();
+    let model = OpenVlaModel::load_on(&dir, args.device, kind).unwrap_or_else(|e| panic!("{e}"));
+    let load_s = t0.elapsed().as_secs_f64();
+    let unnorm = model.config().norm_stats.keys().into_iter().next();
+    let size = model.config().backbones[0].image_size as u32;
+    println!("openvla bench: {} on {:?} in {kind:?}; loaded in {load_s:.1} s", dir.display(), args.device);
+    let agreement = compare_with_reference(&model, &dir, unnorm.as_deref());
+    let mut rows = Vec::new();
+    for &b in &args.batches {
+        let mut seed = 0x9e3779b97f4a7c15u64 ^ b as u64;
+        let images: Vec<RgbImage> = (0..b)
+            .map(|_| {
+                let rgb = (0..size * size * 3)
+                    .map(|_| {
+                        seed ^= seed << 13;
+                        seed ^= seed >> 7;
+                        seed ^= seed << 17;
+                        (seed >> 56) as u8
+                    })
+                    .collect();
+                RgbImage::new(size, size, rgb).expect("image")
+            })
+            .collect();
+        let queries: Vec<(&RgbImage, &str)> =
+            images.iter().enumerate().map(|(i, im)| (im, INSTRUCTIONS[i % INSTRUCTIONS.len()])).collect();
+        let mut times = Vec::new();
+        for i in 0..args.warmup + args.iters {
+            let t = Instant::now();
+            let p = model.predict_actions(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}"));
+            let s = t.elapsed().as_secs_f64();
+            assert_eq!(p.len(), b);
+            if i >= args.warmup {
+                times.push(s);
+            }
+        }
+        times.sort_by(f64::total_cmp);
+        let median = percentile(&times, 0.5);
+        let row = serde_json::json!({
+            "batch": b, "iters": times.len(),
+            "call_ms_median": median * 1e3, "call_ms_p90": percentile(&times, 0.9) * 1e3,
+            "call_ms_min": times[0] * 1e3,
+            "ms_per_action": median * 1e3 / b as f64, "actions_per_s": b as f64 / median,
+        });
+        println!(
+            "  B={b:>3}: {:>8.1} ms per call (p90 {:.1}), {:>7.2} ms per action, {:>7.1} actions/s",
+            median * 1e3,
+            percentile(&times, 0.9) * 1e3,
+            median * 1e3 / b as f64,
+            b as f64 / median
+        );
+        rows.push(row);
+    }
+    if let Some(out) = &args.json {
+        let report = serde_json::json!({
+            "implementation": "rust (tch, libtorch)", "checkpoint": dir.display().to_string(),
+            "device": format!("{:?}", args.device), "dtype": format!("{kind:?}"), "load_s": load_s,
+            "reference_agreement": agreement, "results": rows,
+        });
+        std::fs::write(out, serde_json::to_string_pretty(&report).expect("json")).expect("write --json");
+    }
+}

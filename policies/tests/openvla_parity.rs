@@ -140,5 +140,18 @@ fn tiny_openvla_matches_the_python_reference() {
     let small = RgbImage::new(8, 8, vec![0; 8 * 8 * 3]).unwrap();
     assert!(model.predict_action(&small, instruction, None).unwrap_err().to_string().contains("224x224"));
 
+    // checkpoint files that cannot be used name the fix
+    let partial = dir.join("partial");
+    std::fs::create_dir_all(&partial).unwrap();
+    std::fs::copy(dir.join("config.json"), partial.join("config.json")).unwrap();
+    let e = OpenVlaModel::load(&partial).err().expect("no tokenizer.json").to_string();
+    assert!(e.contains("tokenizer.json") && e.contains("save_pretrained"), "{e}");
+    let pre = std::fs::read_to_string(dir.join("preprocessor_config.json")).unwrap();
+    let letterboxed = pre.replace("\"tvf_do_letterbox\": false", "\"tvf_do_letterbox\": [true, true]");
+    assert_ne!(pre, letterboxed);
+    std::fs::write(partial.join("preprocessor_config.json"), letterboxed).unwrap();
+    let e = libero_policies::openvla::OpenVlaConfig::load(&partial).err().expect("letterbox").to_string();
+    assert!(e.contains("letterbox"), "{e}");
+
     let _ = std::fs::remove_dir_all(&dir);
 }

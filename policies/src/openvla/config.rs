@@ -162,7 +162,13 @@ impl OpenVlaConfig {
                     mean = f64s(m, &format!("{what}: means[{i}]"))?;
                     std = f64s(s, &format!("{what}: stds[{i}]"))?;
                 }
-                if pre.get("tvf_do_letterbox").and_then(Value::as_bool) == Some(true) {
+                // a bool, or one per backbone in fused processors
+                let letterbox = match pre.get("tvf_do_letterbox") {
+                    Some(Value::Array(per_backbone)) => per_backbone.get(i).and_then(Value::as_bool),
+                    Some(v) => v.as_bool(),
+                    None => None,
+                };
+                if letterbox == Some(true) {
                     return Err(bad(format!("{what}: letterbox preprocessing is not supported")));
                 }
             }

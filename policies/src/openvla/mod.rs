@@ -93,6 +93,13 @@ impl OpenVlaModel {
     pub fn load_on(dir: &Path, device: Device, kind: Kind) -> Result<Self, OpenVlaError> {
         let config = OpenVlaConfig::load(dir)?;
         let tok_path = dir.join("tokenizer.json");
+        if !tok_path.exists() {
+            return Err(bad(format!(
+                "{} is missing (only tokenizer.model?): write it once with transformers, \
+                 `AutoTokenizer.from_pretrained(DIR).save_pretrained(DIR)`, which adds tokenizer.json",
+                tok_path.display()
+            )));
+        }
         let tokenizer =
             tokenizers::Tokenizer::from_file(&tok_path).map_err(|e| bad(format!("{}: {e}", tok_path.display())))?;
         let bos =

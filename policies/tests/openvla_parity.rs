@@ -150,7 +150,7 @@ fn tiny_openvla_matches_the_python_reference() {
     let letterboxed = pre.replace("\"tvf_do_letterbox\": false", "\"tvf_do_letterbox\": [true, true]");
     assert_ne!(pre, letterboxed);
     std::fs::write(partial.join("preprocessor_config.json"), letterboxed).unwrap();
-    let e = libero_policies::openvla::OpenVlaConfig::load(&partial).err().expect("letterbox").to_string();
+    let e = libero_policies::openvla::OpenVlaConfig::load(&partial).expect_err("letterbox").to_string();
     assert!(e.contains("letterbox"), "{e}");
 
     let _ = std::fs::remove_dir_all(&dir);

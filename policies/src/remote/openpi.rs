@@ -25,9 +25,9 @@
 
 use super::client::{OpenpiConnection, RemoteError};
 use super::msgpack_numpy::{self, NdArray};
+use crate::chunking::ActionChunker;
 use crate::{Action, Observation, Policy, PolicyError};
 use rmpv::Value;
-use std::collections::VecDeque;
 use std::time::Duration;
 
 /// `Args.replan_steps` of openpi's `examples/libero/main.py`: actions executed per chunk.
@@ -171,9 +171,8 @@ pub struct OpenpiPolicy {
     /// The metadata of the first connection, as JSON (for the identity, and to check reconnects).
     metadata: serde_json::Value,
     prompt: String,
-    plan: VecDeque<Action>,
-    last_predicted: Option<usize>,
-    queries: u64,
+    /// The queued actions of the last chunk (executes `replan_steps` of each).
+    chunker: ActionChunker,
 }
 
 impl OpenpiPolicy {
@@ -185,13 +184,11 @@ impl OpenpiPolicy {
         let conn = open(&config)?;
         let metadata = msgpack_numpy::to_json(conn.metadata());
         Ok(OpenpiPolicy {
-            config,
             conn: Some(conn),
             metadata,
             prompt: String::new(),
-            plan: VecDeque::new(),
-            last_predicted: None,
-            queries: 0,
+            chunker: ActionChunker::new(config.replan_steps),
+            config,
         })
     }
 
@@ -206,18 +203,18 @@ impl OpenpiPolicy {
 
     /// Length of the last chunk the server predicted (None before the first query).
     pub fn last_predicted(&self) -> Option<usize> {
-        self.last_predicted
+        self.chunker.last_predicted()
     }
 
     /// Server queries since the last [`Policy::reset`].
     pub fn queries(&self) -> u64 {
-        self.queries
+        self.chunker.queries()
     }
 
     /// Whether the next `act` sends a request (so images are needed); false while actions of the
     /// last chunk are still queued.
     pub fn needs_query(&self) -> bool {
-        self.plan.is_empty()
+        self.chunker.needs_query()
     }
 
     /// Identity for the run manifest. `chunking.predicted` is the server's `action_horizon` when
@@ -253,7 +250,7 @@ impl OpenpiPolicy {
 
     /// The next action, sending `images` (already preprocessed) with the request when one is due.
     pub fn act_with_images(&mut self, obs: &Observation, images: Option<&OpenpiImages>) -> Result<Action, PolicyError> {
-        if self.plan.is_empty() {
+        if self.chunker.needs_query() {
             let request = libero_request(obs, &self.prompt, images);
             let chunk = self.query(&request)?;
             if chunk.len() < self.config.replan_steps {
@@ -263,11 +260,9 @@ impl OpenpiPolicy {
                     self.config.replan_steps
                 )));
             }
-            self.last_predicted = Some(chunk.len());
-            self.queries += 1;
-            self.plan.extend(chunk.into_iter().take(self.config.replan_steps));
+            self.chunker.push_chunk(chunk).map_err(error)?;
         }
-        Ok(self.plan.pop_front().expect("a chunk of at least replan_steps >= 1 actions was queued"))
+        Ok(self.chunker.next_action().expect("a chunk of at least replan_steps >= 1 actions was queued"))
     }
 
     /// Sends one observation dict and returns the action chunk; (re)connects first if needed.
@@ -293,9 +288,7 @@ impl OpenpiPolicy {
 impl Policy for OpenpiPolicy {
     fn reset(&mut self, instruction: &str, _episode_seed: u64) {
         self.prompt = instruction.to_string();
-        self.plan.clear();
-        self.last_predicted = None;
-        self.queries = 0;
+        self.chunker.reset();
     }
 
     /// Renders only when a request is due: the queued actions of a chunk need none.

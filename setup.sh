@@ -78,6 +78,11 @@ OPENVLA_VENV="$CACHE/openvla-venv-$(sha256sum scripts/setup/openvla_ref_venv.sh 
 bash scripts/setup/openvla_ref_venv.sh "$OPENVLA_VENV"
 ln -sfn "$OPENVLA_VENV" .openvla-venv
 
+step "S3 server venv (moto's S3 server, boto3: the s3:// run location test)"
+S3_VENV="$CACHE/s3-venv-$(sha256sum scripts/setup/s3_server_venv.sh | cut -c1-12)"
+bash scripts/setup/s3_server_venv.sh "$S3_VENV"
+ln -sfn "$S3_VENV" .s3-venv
+
 step "task bundles ($SUITES)"
 BUNDLE_KEY=$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py scripts/reference/libero_ref.py | sha256sum | cut -c1-12)
 BUNDLES="$CACHE/bundles-$BUNDLE_KEY"

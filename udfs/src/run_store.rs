@@ -9,8 +9,8 @@
 //!                                          presence marks the episode finished
 //! ```
 //!
-//! A location is a local path (the default), `file://`, `memory://` (tests) or, with the
-//! `cloud` feature of the pipeline, `s3://`, `gs://`, `az://`. Every `put` of `object_store` is
+//! A location is a local path (the default), `file://`, `memory://` (tests), `s3://` (AWS or any
+//! S3-compatible server through `AWS_ENDPOINT`), `gs://` or `az://`. Every `put` of `object_store` is
 //! atomic (local files are written to a temporary name and renamed), so a killed run leaves no
 //! half-written part, at most a steps part without its episode part, which a resume rewrites.
 
@@ -57,11 +57,14 @@ impl RunStore {
         if !url.path().ends_with('/') {
             url.set_path(&format!("{}/", url.path()));
         }
-        // Credentials and options of cloud stores come from the environment (AWS_*, GOOGLE_*,
-        // AZURE_*; object_store ignores the variables it does not know).
-        let (store, root) = object_store::parse_url_opts(&url, std::env::vars()).map_err(|e| {
+        // Credentials and options of cloud stores come from the environment: the AWS_*, GOOGLE_*
+        // and AZURE_* variables only (object_store also reads bare names such as `endpoint` or
+        // `token`, which other tools' variables must not set by accident).
+        let options = std::env::vars().filter(|(k, _)| ["AWS_", "GOOGLE_", "AZURE_"].iter().any(|p| k.starts_with(p)));
+        let (store, root) = object_store::parse_url_opts(&url, options).map_err(|e| {
             anyhow::anyhow!(
-                "cannot open the run location {location}: {e}. Use a local path, file://, memory:// or, in a build with `--features cloud`, s3://, gs://, az://"
+                "cannot open the run location {location}: {e}. Use a local path, file://, memory://, s3://, gs:// or az:// \
+                 (credentials and endpoints from AWS_*, GOOGLE_*, AZURE_* variables)"
             )
         })?;
         let base = Url::parse(&format!("{}://{}", url.scheme(), url.authority()))?;

@@ -38,16 +38,23 @@ impl S3Server {
             .stderr(std::fs::File::create(log).unwrap())
             .spawn()
             .expect("start moto's S3 server");
-        let server = S3Server { child, endpoint: format!("http://127.0.0.1:{port}") };
+        let mut server = S3Server { child, endpoint: format!("http://127.0.0.1:{port}") };
         let t0 = Instant::now();
+        let log_tail =
+            || std::fs::read_to_string(log).unwrap_or_default().lines().rev().take(20).collect::<Vec<_>>().join("\n");
         while TcpStream::connect(("127.0.0.1", port)).is_err() {
+            if let Ok(Some(status)) = server.child.try_wait() {
+                panic!("moto's S3 server exited ({status}):\n{}", log_tail());
+            }
             assert!(
                 t0.elapsed() < Duration::from_secs(30),
-                "moto's S3 server did not listen within 30 s: {}",
-                log.display()
+                "moto's S3 server did not listen within 30 s:\n{}",
+                log_tail()
             );
             std::thread::sleep(Duration::from_millis(100));
         }
+        // the listener is moto (not another program that took the port meanwhile)
+        assert_eq!(server.boto3("print(len(s3.list_buckets()['Buckets']))").trim(), "0");
         server
     }
 
@@ -65,8 +72,12 @@ impl S3Server {
 
     /// `pipeline` with this server's endpoint and credentials in the environment, as a user sets them.
     fn pipeline(&self, args: &[&str]) -> Output {
-        Command::new(pipeline_bin())
-            .args(args)
+        let mut cmd = Command::new(pipeline_bin());
+        // none of the developer's own AWS settings (AWS_ENDPOINT_URL, AWS_SESSION_TOKEN, a profile, ...)
+        for (key, _) in std::env::vars().filter(|(k, _)| k.starts_with("AWS_")) {
+            cmd.env_remove(key);
+        }
+        cmd.args(args)
             .current_dir(repo_root())
             .env("AWS_ENDPOINT", &self.endpoint)
             .env("AWS_ALLOW_HTTP", "true")
@@ -137,9 +148,17 @@ fn a_run_on_s3_is_written_read_resumed_and_equals_the_local_run() {
     let results = |name: &str| std::fs::read_to_string(d.join(name).join("results.csv")).unwrap();
     assert_eq!(results("s3"), results("local"));
 
-    // a bucket that does not exist: an error naming it, before any episode
+    // a bucket that does not exist: an error naming it and the fix, before any episode, for a run
+    // and for reading one
+    let says = |t: &str| {
+        t.contains("the bucket \"no-such-bucket\" does not exist at http://127.0.0.1") && t.contains("create it")
+    };
     let missing =
         server.pipeline(&["run", s, "--out", "s3://no-such-bucket/run", "--policy", "lift", "--max-steps", "5"]);
     let text = String::from_utf8_lossy(&missing.stderr);
-    assert!(!missing.status.success() && text.contains("no-such-bucket"), "{text}");
+    assert!(!missing.status.success() && says(&text), "{text}");
+    let missing =
+        server.pipeline(&["results", "--run", "s3://no-such-bucket/run", "--out", d.join("none").to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&missing.stderr);
+    assert!(!missing.status.success() && says(&text), "{text}");
 }

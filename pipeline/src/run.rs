@@ -77,7 +77,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
 
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async {
-        let store = RunStore::open(&args.out)?;
+        let store = RunStore::connect(&args.out).await?;
         match store.read_manifest().await? {
             Some(stored) if stored.run_config != manifest.run_config => {
                 bail!(
@@ -129,6 +129,10 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             let pending_batch = arrow::compute::take_record_batch(&specs.batch, &UInt32Array::from(pending))?;
             run_rollouts(ctx, pending_batch, &specs.extras).await?;
             progress.finish();
+            // whether the batched policy's forwards were full (?batch=N and --jobs)
+            for (name, stats) in libero_policies::batching::shared_batcher_stats() {
+                eprintln!("batched policy {name}: {}", stats.summary());
+            }
         }
         print_results(&args.out, &args.policy).await
     })

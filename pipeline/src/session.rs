@@ -162,7 +162,7 @@ pub mod queries {
 
 /// Open a session on the run at `location`, with `scored` defined by `success` and `cap`.
 pub async fn open(location: &str, success: SuccessDefinition, cap: Option<u32>) -> Result<(SessionContext, RunStore)> {
-    let store = RunStore::open(location)?;
+    let store = RunStore::connect(location).await?;
     if store.read_manifest().await?.is_none() {
         anyhow::bail!("{} holds no run (no manifest.json); start one with `pipeline run`", store.url());
     }

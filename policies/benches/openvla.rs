@@ -57,7 +57,9 @@ fn parse_args() -> Result<Args, String> {
                     .map(|b| b.parse().ok().filter(|&b: &usize| b >= 1).ok_or(format!("--batch: bad size {b:?}")))
                     .collect::<Result<_, _>>()?
             }
-            "--iters" => a.iters = value()?.parse().map_err(|e| format!("--iters: {e}"))?,
+            "--iters" => {
+                a.iters = value()?.parse().ok().filter(|&n: &usize| n >= 1).ok_or("--iters must be at least 1")?
+            }
             "--warmup" => a.warmup = value()?.parse().map_err(|e| format!("--warmup: {e}"))?,
             "--device" => {
                 a.device = match value()?.as_str() {

@@ -35,8 +35,6 @@ pub fn shared_batcher<M: BatchModel>(
     name: &str,
     make: impl FnOnce() -> Result<(M, usize, Duration), PolicyError>,
 ) -> Result<Arc<Batcher>, PolicyError> {
-    static BATCHERS: std::sync::OnceLock<Mutex<std::collections::HashMap<String, Arc<Batcher>>>> =
-        std::sync::OnceLock::new();
     let mut map = BATCHERS.get_or_init(Default::default).lock().expect("batchers");
     if let Some(b) = map.get(name) {
         return Ok(b.clone());
@@ -47,12 +45,36 @@ pub fn shared_batcher<M: BatchModel>(
     Ok(b)
 }
 
+static BATCHERS: std::sync::OnceLock<Mutex<std::collections::HashMap<String, Arc<Batcher>>>> =
+    std::sync::OnceLock::new();
+
+/// Every shared batcher of this process by name, with the batch sizes it has run (the run prints
+/// them, so a user sees whether the forwards were full).
+pub fn shared_batcher_stats() -> Vec<(String, BatchStats)> {
+    let Some(map) = BATCHERS.get() else { return Vec::new() };
+    let map = map.lock().expect("batchers");
+    let mut stats: Vec<_> = map.iter().map(|(name, b)| (name.clone(), b.stats())).collect();
+    stats.sort_by(|a, b| a.0.cmp(&b.0));
+    stats
+}
+
 type Reply = Sender<Result<Vec<Action>, String>>;
 
 /// Batch sizes the batcher has run, for tests and benchmarks.
 #[derive(Debug, Default, Clone)]
 pub struct BatchStats {
     pub batches: Vec<usize>,
+}
+
+impl BatchStats {
+    /// `"12 forwards, 3.5 episodes per forward on average, at most 4"`.
+    pub fn summary(&self) -> String {
+        let n = self.batches.len();
+        let total: usize = self.batches.iter().sum();
+        let max = self.batches.iter().max().copied().unwrap_or(0);
+        let mean = if n == 0 { 0.0 } else { total as f64 / n as f64 };
+        format!("{n} forwards, {mean:.1} episodes per forward on average, at most {max}")
+    }
 }
 
 /// The thread that owns the model and answers batches.
@@ -84,7 +106,24 @@ impl Batcher {
                 }
                 let requests: Vec<(String, Observation)> =
                     pending.iter().map(|(i, o, _)| (i.clone(), o.clone())).collect();
-                let mut answers = model.predict_batch(&requests);
+                // A panicking model (e.g. CUDA out of memory at a large batch) answers every pending
+                // request with its message instead of silently ending the batching thread.
+                let mut answers =
+                    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| model.predict_batch(&requests)))
+                        .unwrap_or_else(|panic| {
+                            let msg = panic
+                                .downcast_ref::<String>()
+                                .cloned()
+                                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                                .unwrap_or_else(|| "a panic without a message".into());
+                            let hint = "if it ran out of GPU memory, lower the policy's ?batch=N";
+                            requests
+                                .iter()
+                                .map(|_| {
+                                    Err(format!("the model failed on a batch of {}: {msg} ({hint})", requests.len()))
+                                })
+                                .collect()
+                        });
                 answers.resize_with(pending.len(), || Err("the model returned fewer answers than requests".into()));
                 thread_stats.lock().expect("stats").batches.push(pending.len());
                 for ((_, _, reply), answer) in pending.into_iter().zip(answers) {
@@ -203,6 +242,26 @@ mod tests {
         let stats = batcher.stats();
         assert_eq!(stats.batches.iter().sum::<usize>(), 2 * workers, "{stats:?}");
         assert!(stats.batches.iter().any(|&b| b > 1), "no two queries shared a forward: {stats:?}");
+    }
+
+    /// Panics on the instruction "panic".
+    struct Fragile;
+    impl BatchModel for Fragile {
+        fn predict_batch(&mut self, requests: &[(String, Observation)]) -> Vec<Result<Vec<Action>, String>> {
+            assert!(requests.iter().all(|(i, _)| i != "panic"), "CUDA out of memory (simulated)");
+            requests.iter().map(|_| Ok(vec![[0.0; 7]])).collect()
+        }
+    }
+
+    #[test]
+    fn a_panicking_model_answers_with_its_message_and_keeps_serving() {
+        let batcher = Batcher::start(Fragile, 4, Duration::from_millis(1));
+        let mut p = BatchedPolicy::new(batcher.clone(), 1, "fragile");
+        p.reset("panic", 0);
+        let e = p.act(&Observation::default()).unwrap_err().to_string();
+        assert!(e.contains("CUDA out of memory (simulated)") && e.contains("batch=N"), "{e}");
+        p.reset("ok", 0);
+        assert!(p.act(&Observation::default()).is_ok(), "the batching thread survived the panic");
     }
 
     #[test]

@@ -200,7 +200,7 @@ fn load_openvla(
     match batch {
         None => Ok(Box::new(OpenVlaPolicy::load(dir, unnorm_key)?)),
         Some(n) => {
-            let name = format!("openvla:{}?unnorm={}", dir.display(), unnorm_key.as_deref().unwrap_or(""));
+            let name = format!("openvla:{}?unnorm={}&batch={n}", dir.display(), unnorm_key.as_deref().unwrap_or(""));
             let batcher = shared_batcher(&name, || {
                 let model = OpenVlaBatchModel::load(dir, unnorm_key)?;
                 // Wait briefly for the other workers' queries: they arrive within a physics step.
@@ -233,6 +233,10 @@ fn parse_openvla(rest: &str) -> Result<PolicySpec, String> {
     let (mut unnorm_key, mut batch) = (None, None);
     for option in query.into_iter().flat_map(|q| q.split('&')) {
         match option.split_once('=') {
+            Some(("unnorm", _)) if unnorm_key.is_some() => {
+                return Err(format!("openvla:{rest}: unnorm is given twice"));
+            }
+            Some(("batch", _)) if batch.is_some() => return Err(format!("openvla:{rest}: batch is given twice")),
             Some(("unnorm", k)) if !k.is_empty() => unnorm_key = Some(k.to_string()),
             Some(("batch", n)) if n.parse::<usize>().is_ok_and(|n| n >= 1) => batch = n.parse().ok(),
             _ => {
@@ -297,5 +301,38 @@ mod tests {
         assert!("openpi:http://h:1".parse::<PolicySpec>().unwrap_err().contains("ws://"));
         assert!("openpi:ws://h:1?replan=0".parse::<PolicySpec>().unwrap_err().contains("replan=N"));
         assert!("nope".parse::<PolicySpec>().unwrap_err().contains("openpi:ws://"));
+    }
+
+    #[test]
+    fn openvla_specs_parse_in_any_option_order_and_print_back() {
+        let dir = std::path::PathBuf::from("/ckpt/openvla-7b");
+        let cases = [
+            ("openvla:/ckpt/openvla-7b", None, None, "openvla:/ckpt/openvla-7b"),
+            ("openvla:/ckpt/openvla-7b?unnorm=k", Some("k"), None, "openvla:/ckpt/openvla-7b?unnorm=k"),
+            ("openvla:/ckpt/openvla-7b?batch=8", None, Some(8), "openvla:/ckpt/openvla-7b?batch=8"),
+            (
+                "openvla:/ckpt/openvla-7b?batch=8&unnorm=k",
+                Some("k"),
+                Some(8),
+                "openvla:/ckpt/openvla-7b?unnorm=k&batch=8",
+            ),
+        ];
+        for (text, unnorm, batch, printed) in cases {
+            let p: PolicySpec = text.parse().unwrap();
+            let expected = PolicySpec::OpenVla { dir: dir.clone(), unnorm_key: unnorm.map(str::to_string), batch };
+            assert_eq!(p, expected, "{text}");
+            assert_eq!(p.to_string(), printed);
+            assert_eq!(printed.parse::<PolicySpec>().unwrap(), expected, "{printed} reads back");
+        }
+        for (bad, says) in [
+            ("openvla:/c?batch=0", "batch=N"),
+            ("openvla:/c?unnorm=", "unnorm=<dataset key>"),
+            ("openvla:/c?unnorm=a&unnorm=b", "twice"),
+            ("openvla:/c?batch=2&batch=4", "twice"),
+            ("openvla:/c?replan=4", "unknown option"),
+        ] {
+            let e = bad.parse::<PolicySpec>().unwrap_err();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
     }
 }

@@ -71,6 +71,31 @@ impl RunStore {
         Ok(RunStore { store: Arc::from(store), root, url, base })
     }
 
+    /// [`Self::open`], then, for a remote store, one listing of the run's prefix, so that a missing
+    /// bucket, wrong credentials or an unreachable endpoint stop the command with what to fix, not
+    /// as a missing file later (object_store reports a missing bucket as a missing object).
+    pub async fn connect(location: &str) -> anyhow::Result<Self> {
+        let store = Self::open(location)?;
+        if ["file", "memory"].contains(&store.url.scheme()) {
+            return Ok(store);
+        }
+        if let Err(e) = store.store.list_with_delimiter(Some(&store.root)).await {
+            let bucket = store.url.host_str().unwrap_or_default();
+            let endpoint = std::env::var("AWS_ENDPOINT").or_else(|_| std::env::var("AWS_ENDPOINT_URL"));
+            let at = endpoint.map(|e| format!(" at {e}")).unwrap_or_default();
+            let text = e.to_string();
+            anyhow::bail!(
+                "cannot reach the run location {location}: {}\n{text}",
+                if text.contains("NoSuchBucket") || text.contains("NoSuchContainer") {
+                    format!("the bucket {bucket:?} does not exist{at}; create it, or fix the URL")
+                } else {
+                    "check the URL, the credentials and the endpoint (AWS_* / GOOGLE_* / AZURE_* variables)".into()
+                }
+            );
+        }
+        Ok(store)
+    }
+
     pub fn url(&self) -> &Url {
         &self.url
     }

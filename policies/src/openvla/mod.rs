@@ -124,7 +124,7 @@ impl OpenVlaModel {
         &self.config
     }
 
-    /// The processor's `pixel_values` `[1, 3·backbones, H, W]` of an image already at the model's
+    /// The processor's `pixel_values` `[1, 3·backbones, H, W]` of one image already at the model's
     /// size: per backbone `(x / 255 - mean) / std`.
     pub fn pixel_values(&self, image: &RgbImage) -> Result<Tensor, OpenVlaError> {
         let size = self.config.backbones[0].image_size;
@@ -161,7 +161,7 @@ impl OpenVlaModel {
         Ok(ids)
     }
 
-    /// The fused patch features `[1, patches, vision width]` and their projection `[1, patches, llm]`.
+    /// The fused patch features `[B, patches, vision width]` and their projection `[B, patches, llm]`.
     pub fn vision_features(&self, pixel_values: &Tensor) -> (Tensor, Tensor) {
         tch::no_grad(|| {
             let patches = self.tower.patch_features(pixel_values);
@@ -244,7 +244,8 @@ impl OpenVlaModel {
                 let bins: Vec<usize> = tokens.iter().map(|&t| self.bins.bin(t)).collect();
                 let normalized_action: Vec<f64> = bins.iter().map(|&b| self.bins.center(b)).collect();
                 let action = stats.unnormalize(&normalized_action);
-                let step_logits = step_logits.get(b as i64);
+                // a copy: a view would keep the whole batch's logits alive
+                let step_logits = step_logits.get(b as i64).copy();
                 OpenVlaPrediction { input_ids, tokens, bins, normalized_action, action, step_logits }
             })
             .collect();

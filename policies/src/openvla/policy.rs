@@ -156,7 +156,12 @@ impl BatchModel for OpenVlaBatchModel {
             .collect();
         let mut predictions = match self.model.predict_actions(&ready, self.unnorm_key.as_deref()) {
             Ok(p) => p.into_iter(),
-            Err(e) => return requests.iter().map(|_| Err(e.to_string())).collect(),
+            Err(e) => {
+                return images
+                    .iter()
+                    .map(|image| Err(image.as_ref().err().map_or_else(|| e.to_string(), |own| own.to_string())))
+                    .collect();
+            }
         };
         images
             .iter()

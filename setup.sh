@@ -63,25 +63,26 @@ VENV="$CACHE/ref-venv-$VENV_KEY"
 bash scripts/setup/reference_venv.sh "$VENV"
 ln -sfn "$VENV" .venv
 
+# A test-only venv: made by scripts/setup/SCRIPT, cached as $CACHE/PREFIX-<hash of the script>,
+# linked at LINK in the repository.
+test_venv() {
+  local script="scripts/setup/$1" dir
+  dir="$CACHE/$2-$(sha256sum "scripts/setup/$1" | cut -c1-12)"
+  bash "$script" "$dir"
+  ln -sfn "$dir" "$3"
+}
+
 step "notebook venv (polars, pyarrow, matplotlib, jupytext, nbclient, ipykernel)"
-NB_VENV="$CACHE/nb-venv-$(sha256sum scripts/setup/notebook_venv.sh | cut -c1-12)"
-bash scripts/setup/notebook_venv.sh "$NB_VENV"
-ln -sfn "$NB_VENV" .nb-venv
+test_venv notebook_venv.sh nb-venv .nb-venv
 
 step "remote-policy venv (openpi-client, websockets: the toy openpi server of the remote-policy test)"
-REMOTE_VENV="$CACHE/remote-venv-$(sha256sum scripts/setup/remote_policy_venv.sh | cut -c1-12)"
-bash scripts/setup/remote_policy_venv.sh "$REMOTE_VENV"
-ln -sfn "$REMOTE_VENV" .remote-venv
+test_venv remote_policy_venv.sh remote-venv .remote-venv
 
 step "OpenVLA reference venv (torch 2.11.0, transformers 4.40.1, timm 0.9.16: the tiny model of the OpenVLA parity test)"
-OPENVLA_VENV="$CACHE/openvla-venv-$(sha256sum scripts/setup/openvla_ref_venv.sh | cut -c1-12)"
-bash scripts/setup/openvla_ref_venv.sh "$OPENVLA_VENV"
-ln -sfn "$OPENVLA_VENV" .openvla-venv
+test_venv openvla_ref_venv.sh openvla-venv .openvla-venv
 
 step "S3 server venv (moto's S3 server, boto3: the s3:// run location test)"
-S3_VENV="$CACHE/s3-venv-$(sha256sum scripts/setup/s3_server_venv.sh | cut -c1-12)"
-bash scripts/setup/s3_server_venv.sh "$S3_VENV"
-ln -sfn "$S3_VENV" .s3-venv
+test_venv s3_server_venv.sh s3-venv .s3-venv
 
 step "task bundles ($SUITES)"
 BUNDLE_KEY=$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py scripts/reference/libero_ref.py | sha256sum | cut -c1-12)

@@ -5,7 +5,7 @@
 //! step, the action is un-normalised with the named statistics and the gripper mapped; a wrong
 //! `unnorm` key stops the run before any episode, naming the keys the checkpoint has.
 
-use libero_e2e::{ok, pipeline, repo_root, sql_rows, test_dir};
+use libero_e2e::{ok, pipeline, repo_root, run_policy_steps, sql_rows, test_dir};
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -62,22 +62,10 @@ fn batched_openvla_forwards_give_each_episode_its_unbatched_actions() {
     // tasks 0 and 1 of libero_spatial: instructions of different lengths
     ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
     let actions = |name: &str, options: &str| -> Vec<Vec<String>> {
-        let run = d.join(name);
         let policy = format!("openvla:{}?unnorm=libero_spatial_no_noops{options}", ckpt.display());
-        let out = pipeline(&[
-            "run",
-            s,
-            "--out",
-            run.to_str().unwrap(),
-            "--policy",
-            &policy,
-            "--max-steps",
-            "3",
-            "--jobs",
-            "4",
-        ]);
-        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
-        assert!(out.status.success(), "{name}: {stderr}");
+        let extra = ["--max-steps", "3", "--jobs", "4"];
+        let (stderr, rows) =
+            run_policy_steps(&specs, &d.join(name), &policy, &extra, "episode_key, policy_step, action");
         if !options.is_empty() {
             // the run reports its forwards; at least one must have held several episodes
             let line =
@@ -86,16 +74,7 @@ fn batched_openvla_forwards_give_each_episode_its_unbatched_actions() {
             assert!(most > 1, "no forward held more than one episode: {line}");
             eprintln!("{line}");
         }
-        assert_eq!(
-            sql_rows(&run, "SELECT count(*) FROM episodes WHERE error_kind IS NOT NULL", &[]),
-            [["0"]],
-            "{name}"
-        );
-        sql_rows(
-            &run,
-            "SELECT episode_key, policy_step, action FROM steps WHERE policy_step IS NOT NULL ORDER BY episode_key, step",
-            &[],
-        )
+        rows
     };
     let single = actions("single", "");
     let batched = actions("batched", "&batch=4");

@@ -68,6 +68,26 @@ pub fn ok(out: Output) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// `pipeline run SPECS --out RUN --policy POLICY EXTRA..`, which must succeed with no error rows;
+/// its stderr, and the stored policy steps' `columns` (SQL over `steps`) in episode and step order.
+pub fn run_policy_steps(
+    specs: &Path,
+    run: &Path,
+    policy: &str,
+    extra: &[&str],
+    columns: &str,
+) -> (String, Vec<Vec<String>>) {
+    let mut args = vec!["run", specs.to_str().unwrap(), "--out", run.to_str().unwrap(), "--policy", policy];
+    args.extend_from_slice(extra);
+    let out = pipeline(&args);
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{policy}: {stderr}");
+    let errors = sql_rows(run, "SELECT count(*) FROM episodes WHERE error_kind IS NOT NULL", &[]);
+    assert_eq!(errors, [["0"]], "{policy}: error rows");
+    let query = format!("SELECT {columns} FROM steps WHERE policy_step IS NOT NULL ORDER BY episode_key, step");
+    (stderr, sql_rows(run, &query, &[]))
+}
+
 /// A fresh, empty folder for one test of one test file (`group`), unique to this process.
 pub fn test_dir(group: &str, name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("libero-{group}-{}-{name}", std::process::id()));

@@ -2,7 +2,7 @@
 //! libtorch and saved as TorchScript, with its `model.json`, evaluated through the whole dataflow
 //! (cameras rendered for it, chunks executed, identity with the file's hash in the manifest).
 
-use libero_e2e::{ok, pipeline, sql_rows, test_dir};
+use libero_e2e::{ok, pipeline, run_policy_steps, sql_rows, test_dir};
 use tch::{CModule, Device, Kind, Tensor};
 
 /// A file's sha256 by the system's `sha256sum` (a tool independent of the policy's hashing).
@@ -90,26 +90,15 @@ fn batched_forwards_give_each_episode_the_actions_of_an_unbatched_run() {
     let s = specs.to_str().unwrap();
     ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
     let actions = |name: &str, policy: String| -> Vec<Vec<String>> {
-        let run = d.join(name);
-        ok(pipeline(&[
-            "run",
-            s,
-            "--out",
-            run.to_str().unwrap(),
-            "--policy",
+        let extra = ["--max-steps", "6", "--jobs", "4"];
+        run_policy_steps(
+            &specs,
+            &d.join(name),
             &policy,
-            "--max-steps",
-            "6",
-            "--jobs",
-            "4",
-        ]));
-        let errors = sql_rows(&run, "SELECT count(*) FROM episodes WHERE error_kind IS NOT NULL", &[]);
-        assert_eq!(errors, [["0"]], "{name}");
-        sql_rows(
-            &run,
-            "SELECT episode_key, policy_step, action[1], action[3], action[4] FROM steps WHERE policy_step IS NOT NULL ORDER BY episode_key, step",
-            &[],
+            &extra,
+            "episode_key, policy_step, action[1], action[3], action[4]",
         )
+        .1
     };
     let single = actions("single", format!("torchscript:{}", file.display()));
     let batched = actions("batched", format!("torchscript:{}?batch=4", file.display()));

@@ -38,8 +38,10 @@ impl PolicySpec {
             PolicySpec::Expert => Box::new(Expert::new()),
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
             PolicySpec::ExpertDrop => Box::new(ExpertDrop::new()),
-            PolicySpec::TorchScript { file, batch } => load_torchscript(file, *batch)?,
-            PolicySpec::OpenVla { dir, unnorm_key, batch } => load_openvla(dir, unnorm_key.clone(), *batch)?,
+            PolicySpec::TorchScript { file, batch } => load_torchscript(file, *batch, &self.to_string())?,
+            PolicySpec::OpenVla { dir, unnorm_key, batch } => {
+                load_openvla(dir, unnorm_key.clone(), *batch, &self.to_string())?
+            }
             PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
                 replan_steps: *replan_steps,
                 ..OpenpiConfig::new(url.clone())
@@ -171,21 +173,28 @@ impl FromStr for PolicySpec {
     }
 }
 
+/// A worker's policy on the process-wide batcher of `spec` (its text, options included: one model
+/// and one batcher per distinct spec), loading the model with the first worker.
 #[cfg(feature = "torch")]
-fn load_torchscript(file: &std::path::Path, batch: Option<usize>) -> Result<Box<dyn Policy>, PolicyError> {
+fn batched<M: crate::batching::BatchModel>(
+    spec: &str,
+    max_batch: usize,
+    policy: &str,
+    load: impl FnOnce() -> Result<M, PolicyError>,
+) -> Result<Box<dyn Policy>, PolicyError> {
     use crate::batching::{BatchedPolicy, shared_batcher};
+    // Wait briefly for the other workers' queries: they arrive within a physics step.
+    let batcher = shared_batcher(spec, || Ok((load()?, max_batch, std::time::Duration::from_millis(20))))?;
+    let replan = batcher.replan_steps();
+    Ok(Box::new(BatchedPolicy::new(batcher, replan, policy)))
+}
+
+#[cfg(feature = "torch")]
+fn load_torchscript(file: &std::path::Path, batch: Option<usize>, spec: &str) -> Result<Box<dyn Policy>, PolicyError> {
     use crate::torchscript::{TorchScriptModel, TorchScriptPolicy};
     match batch {
         None => Ok(Box::new(TorchScriptPolicy::load(file)?)),
-        Some(n) => {
-            let batcher = shared_batcher(&format!("torchscript:{}", file.display()), || {
-                let model = TorchScriptModel::load(file)?;
-                // Wait briefly for the other workers' queries: they arrive within a physics step.
-                Ok((model, n, std::time::Duration::from_millis(20)))
-            })?;
-            let replan = batcher.replan_steps();
-            Ok(Box::new(BatchedPolicy::new(batcher, replan, "torchscript")))
-        }
+        Some(n) => batched(spec, n, "torchscript", || TorchScriptModel::load(file)),
     }
 }
 
@@ -194,25 +203,22 @@ fn load_openvla(
     dir: &std::path::Path,
     unnorm_key: Option<String>,
     batch: Option<usize>,
+    spec: &str,
 ) -> Result<Box<dyn Policy>, PolicyError> {
-    use crate::batching::{BatchedPolicy, shared_batcher};
     use crate::openvla::{OpenVlaBatchModel, OpenVlaPolicy};
     match batch {
         None => Ok(Box::new(OpenVlaPolicy::load(dir, unnorm_key)?)),
-        Some(n) => {
-            let name = format!("openvla:{}?unnorm={}&batch={n}", dir.display(), unnorm_key.as_deref().unwrap_or(""));
-            let batcher = shared_batcher(&name, || {
-                let model = OpenVlaBatchModel::load(dir, unnorm_key)?;
-                // Wait briefly for the other workers' queries: they arrive within a physics step.
-                Ok((model, n, std::time::Duration::from_millis(20)))
-            })?;
-            Ok(Box::new(BatchedPolicy::new(batcher, 1, "openvla")))
-        }
+        Some(n) => batched(spec, n, "openvla", || OpenVlaBatchModel::load(dir, unnorm_key)),
     }
 }
 
 #[cfg(not(feature = "torch"))]
-fn load_openvla(_: &std::path::Path, _: Option<String>, _: Option<usize>) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_openvla(
+    _: &std::path::Path,
+    _: Option<String>,
+    _: Option<usize>,
+    _: &str,
+) -> Result<Box<dyn Policy>, PolicyError> {
     Err(PolicyError {
         policy: "openvla".into(),
         detail: "this build has no libtorch (built without the `torch` feature)".into(),
@@ -220,7 +226,7 @@ fn load_openvla(_: &std::path::Path, _: Option<String>, _: Option<usize>) -> Res
 }
 
 #[cfg(not(feature = "torch"))]
-fn load_torchscript(_: &std::path::Path, _: Option<usize>) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_torchscript(_: &std::path::Path, _: Option<usize>, _: &str) -> Result<Box<dyn Policy>, PolicyError> {
     Err(PolicyError {
         policy: "torchscript".into(),
         detail: "this build has no libtorch (built without the `torch` feature)".into(),

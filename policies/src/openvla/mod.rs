@@ -36,7 +36,7 @@ use crate::preprocess::RgbImage;
 pub use action::ActionBins;
 pub use config::OpenVlaConfig;
 pub use policy::{OpenVlaBatchModel, OpenVlaPolicy};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use tch::{Device, Kind, Tensor};
 
 /// Errors name the policy `openvla`.
@@ -71,7 +71,6 @@ pub struct OpenVlaPrediction {
 }
 
 pub struct OpenVlaModel {
-    dir: PathBuf,
     config: OpenVlaConfig,
     tower: vision::VisionTower,
     llm: llama::Llama,
@@ -113,11 +112,7 @@ impl OpenVlaModel {
         let tower = vision::VisionTower::new(featurizers, &mut w)?;
         let llm = llama::Llama::load(&mut w, &config.text, device)?;
         let bins = ActionBins::new(config.action_vocab_size, config.n_action_bins);
-        Ok(OpenVlaModel { dir: dir.to_path_buf(), config, tower, llm, tokenizer, bos, bins, device, kind })
-    }
-
-    pub fn dir(&self) -> &Path {
-        &self.dir
+        Ok(OpenVlaModel { config, tower, llm, tokenizer, bos, bins, device, kind })
     }
 
     pub fn config(&self) -> &OpenVlaConfig {

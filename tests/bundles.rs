@@ -41,6 +41,38 @@ fn fixture_poses_change_between_episodes_and_seeds_like_the_reference() {
     assert!(err.contains("seed 3") && err.contains("[0, 7]"), "{err}");
 }
 
+/// The set-up compared every task's recorded fixture poses, for every seed, with the published
+/// loop's real hard resets (episodes 0-1 by the loop itself, a middle one and the last one by one
+/// hard reset each) and found them equal; the tasks whose `:init` sets an articulated object's
+/// state (open/close/turnon/turnoff) are exactly the four whose poses depend on LIBERO's growing
+/// property-sampler list (issue 17).
+#[test]
+fn recorded_fixture_poses_were_checked_against_the_published_loop_on_every_task_and_seed() {
+    let set = bundles();
+    let mut with_property_samplers = Vec::new();
+    let mut spots = std::collections::BTreeSet::new();
+    for suite in Suite::CANONICAL {
+        for task_id in 0..10 {
+            let bundle = set.load(suite, task_id).unwrap();
+            let check = &bundle.provenance["checks"]["published_loop"];
+            let what = format!("{suite} task {task_id}: {check}");
+            let seeds: Vec<u64> = check["seeds"].as_array().expect(&what).iter().map(|v| v.as_u64().unwrap()).collect();
+            assert_eq!(seeds, bundle.fixture_seeds(), "{what}");
+            assert_eq!(check["max_abs_diff"].as_f64(), Some(0.0), "{what}");
+            assert_eq!(check["loop_episodes"], serde_json::json!([0, 1]), "{what}");
+            let spot: Vec<u64> =
+                check["spot_episodes"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap()).collect();
+            assert_eq!(spot.last(), Some(&(bundle.task.fixture_episodes as u64 - 1)), "{what}: the last episode");
+            spots.extend(spot);
+            if check["property_samplers_per_load"].as_u64().unwrap() > 0 {
+                with_property_samplers.push(format!("{suite} {task_id}"));
+            }
+        }
+    }
+    assert_eq!(with_property_samplers, ["libero_spatial 4", "libero_10 3", "libero_10 8", "libero_10 9"]);
+    assert!(spots.len() >= 8, "the middle spot episodes should spread over 2..48: {spots:?}");
+}
+
 #[test]
 fn instructions_come_from_the_bddl_language_tag() {
     // The file name says "in the bowl"; the BDDL (and the published evaluations) say "on the bowl".

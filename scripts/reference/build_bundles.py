@@ -8,8 +8,9 @@ One folder per task, `OUT/<suite>/<task_id:02d>/`:
                        MuJoCo's re-saved XML, which drops inertiagrouprange and changes masses), with
                        every asset path rewritten relative to the shared `OUT/assets/` folder
   init_states.npy      the task's init states, float64 (n, 1+nq+nv): [time, qpos, qvel] per row
-  fixtures.json        fixture root-body poses per (env seed, episode index): what `reset()` writes
-                       into the live model after `env.seed(seed)` and `index+1` resets
+  fixtures.json        fixture root-body poses per (env seed, episode index): what the published loop's
+                       hard `reset()` writes into the live model after `env.seed(seed)` and `index+1`
+                       resets (checked against real hard resets on every task and seed, below)
   task.json            instruction, BDDL goal, objects, regions, objects of interest, cameras,
                        robot/controller constants, the reset-time controller snapshot
   reference_model.json the reference's compiled-model sizes and parameter arrays (parity check)
@@ -29,7 +30,7 @@ from concurrent.futures import ProcessPoolExecutor
 import libero_ref as L
 from libero_ref import mujoco, np
 
-BUNDLE_FORMAT_VERSION = 1  # keep equal to libero_schema::bundle_format::BUNDLE_FORMAT_VERSION
+BUNDLE_FORMAT_VERSION = 2  # keep equal to libero_schema::bundle_format::BUNDLE_FORMAT_VERSION
 
 # Compiled-model arrays the Rust side must reproduce exactly (after applying fixture poses).
 MODEL_ARRAYS = [
@@ -230,7 +231,7 @@ def objects_record(env):
 
 
 def build_task(job):
-    suite, task_id, out, seeds, n_episodes, verify = job
+    suite, task_id, out, seeds, n_episodes, verify = job  # verify: episodes checked by the full loop
     t0 = time.time()
     b, task, bddl = L.task_of(suite, task_id)
     scene_dir = os.path.join(out, suite, f"{task_id:02d}")
@@ -271,17 +272,11 @@ def build_task(job):
     reference_model["arrays"]["body_pos"] = arr(_with_xml_fixtures(xml_model, xml_poses).body_pos)
     reference_model["arrays"]["body_quat"] = arr(xml_model.body_quat)
 
-    # Fixture poses per (seed, episode), by the cheap exact path (soft reset + XML poses restored).
+    # Fixture poses per (seed, episode), by the cheap exact path (soft reset from what a rebuilt
+    # model has), then checked against the published loop's real hard resets.
     fixtures = {str(s): L.fixture_pose_sequence(env, s, n_episodes, xml_poses) for s in seeds}
-    verified = None
-    if verify:
-        soft = fixtures[str(seeds[0])][:verify]
-        hard = L.hard_reset_pose_sequence(env, seeds[0], verify)
-        diff = max(abs(a - c) for e1, e2 in zip(soft, hard) for body in e1
-                   for k in ("pos", "quat") for a, c in zip(e1[body][k], e2[body][k])) if fixture_bodies else 0.0
-        if diff != 0.0:
-            raise SystemExit(f"{suite} task {task_id}: soft-reset fixture poses differ from hard resets by {diff}")
-        verified = dict(episodes=verify, seed=seeds[0], max_abs_diff=diff)
+    published_loop = verify_fixtures(env, bddl, fixtures, xml_poses, seeds, n_episodes, verify, task_id,
+                                     f"{suite} task {task_id}")
 
     init = np.asarray(b.get_task_init_states(task_id), dtype=np.float64)
     m = live
@@ -305,10 +300,13 @@ def build_task(job):
         controller=controller,
         model_overrides=overrides,
     )
-    _write(os.path.join(scene_dir, "task.json"), json.dumps(task_json, indent=1))
-    _write(os.path.join(scene_dir, "fixtures.json"), json.dumps(
-        dict(doc="fixture root-body poses after env.seed(seed) and (episode+1) reset() calls; quat is (w,x,y,z)",
-             seeds=fixtures)))
+    task_text = json.dumps(task_json, indent=1)
+    fixtures_text = json.dumps(dict(
+        doc="fixture root-body poses of the published loop's episode after env.seed(seed) and (episode+1) "
+            "hard reset() calls; quat is (w,x,y,z)",
+        seeds=fixtures))
+    _write(os.path.join(scene_dir, "task.json"), task_text)
+    _write(os.path.join(scene_dir, "fixtures.json"), fixtures_text)
     _write(os.path.join(scene_dir, "reference_model.json"), json.dumps(reference_model))
     import robosuite
     import libero
@@ -318,9 +316,10 @@ def build_task(job):
                       hf_libero=_dist_version("hf-libero"), python=sys.version.split()[0]),
         sha256=dict(bddl=sha256_file(bddl), init_states=sha256_bytes(init.tobytes()),
                     raw_xml=sha256_bytes(xml.encode()), scene_xml=sha256_bytes(scene_xml.encode()),
+                    task_json=sha256_bytes(task_text.encode()), fixtures_json=sha256_bytes(fixtures_text.encode()),
                     assets={k: sha256_file(os.path.join(assets_dir, k)) for k in sorted(used_assets)}),
         checks=dict(model_fields_compared=n_fields, model_fields_differing_after_overrides=0,
-                    soft_reset_vs_hard=verified),
+                    published_loop=published_loop),
         built_seconds=round(time.time() - t0, 2),
     )
     _write(os.path.join(scene_dir, "provenance.json"), json.dumps(prov, indent=1))
@@ -330,6 +329,55 @@ def build_task(job):
                n_init_states=int(init.shape[0]), assets_bytes=sum(used_assets.values()), secs=prov["built_seconds"])
     print(json.dumps(row), flush=True)
     return row
+
+
+def spot_episodes(task_id, n_episodes, full):
+    """Episode indices checked one by one beyond the first `full`: one in the middle that moves with
+    the task (so the suite covers the range) and the last."""
+    if n_episodes <= full:
+        return []
+    middle = full + (7 * task_id) % max(1, n_episodes - 1 - full)
+    return sorted({middle, n_episodes - 1})
+
+
+def max_pose_diff(a, b):
+    """max |a - b| over two episodes' fixture poses (inf when the bodies differ)."""
+    if set(a) != set(b):
+        return float("inf")
+    return max((abs(x - y) for body in a for k in ("pos", "quat") for x, y in zip(a[body][k], b[body][k])),
+               default=0.0)
+
+
+def verify_fixtures(env, bddl, fixtures, xml_poses, seeds, n_episodes, full, task_id, what):
+    """Check the recorded fixture poses against the published loop's real hard resets, per seed:
+    - episodes 0..full-1 by the loop itself (a freshly constructed env, env.seed(seed), one hard
+      reset per episode);
+    - a spread of later episodes (`spot_episodes`, the last one included), each by one real hard
+      reset from the RNG state the loop has then, comparing the poses *and* the RNG state after it
+      (so the reset made exactly the draws the recorded sequence assumes).
+    Any difference stops the set-up. `verify_bundles.py` runs the whole loop for every episode."""
+    t0 = time.time()
+    spots = spot_episodes(task_id, n_episodes, full)
+    worst = 0.0
+    for s in seeds:
+        recorded = fixtures[str(s)]
+        loop = L.published_loop_pose_sequence(bddl, s, min(full, n_episodes))
+        for k, poses in enumerate(loop):
+            worst = max(worst, max_pose_diff(recorded[k], poses))
+        if spots:
+            rng = L.soft_reset_rng_states(env, s, max(spots) + 1, xml_poses)
+            for k in spots:
+                poses, after = L.published_hard_reset_at(env, k, rng[k])
+                worst = max(worst, max_pose_diff(recorded[k], poses))
+                if not (np.array_equal(after[1], rng[k + 1][1]) and after[2] == rng[k + 1][2]):
+                    raise SystemExit(f"{what}, seed {s}, episode {k}: the hard reset made other RNG draws "
+                                     "than the recorded fixture sequence assumes")
+        if worst != 0.0:
+            raise SystemExit(f"{what}, seed {s}: recorded fixture poses differ from the published loop's "
+                             f"hard resets by {worst}")
+    return dict(seeds=seeds, loop_episodes=list(range(min(full, n_episodes))), spot_episodes=spots,
+                property_samplers_per_load=len(getattr(env, L.PROPERTY_SAMPLERS_PER_LOAD)),
+                max_abs_diff=worst, seconds=round(time.time() - t0, 2))
 
 
 def _with_xml_fixtures(model, xml_poses):
@@ -356,9 +404,9 @@ def main():
     ap.add_argument("--suites", default="libero_spatial,libero_object,libero_goal,libero_10")
     ap.add_argument("--seeds", default="0,7", help="env seeds to record fixture poses for (OpenVLA: 0, openpi: 7)")
     ap.add_argument("--episodes", type=int, default=50)
-    ap.add_argument("--verify-tasks", type=int, default=1,
-                    help="per suite, compare soft-reset fixture poses with real hard resets on this many tasks")
-    ap.add_argument("--verify-episodes", type=int, default=3)
+    ap.add_argument("--verify-episodes", type=int, default=2,
+                    help="per task and seed, episodes checked by running the published loop itself (real hard "
+                         "resets from a fresh env); two later ones, the last included, are checked one by one")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
@@ -366,7 +414,7 @@ def main():
     for suite in args.suites.split(","):
         n = L.benchmark.get_benchmark_dict()[suite]().n_tasks
         for i in range(n):
-            jobs.append((suite, i, args.out, seeds, args.episodes, args.verify_episodes if i < args.verify_tasks else 0))
+            jobs.append((suite, i, args.out, seeds, args.episodes, args.verify_episodes))
     t0 = time.time()
     with ProcessPoolExecutor(max_workers=args.jobs) as ex:
         rows = list(ex.map(build_task, jobs))

@@ -35,21 +35,15 @@ def record(job):
     env = L.make_env(bddl, has_offscreen_renderer=True, use_camera_obs=True, camera_names=cameras,
                      camera_heights=size, camera_widths=size)
     init_states = b.get_task_init_states(task_id)
-    m0 = mujoco.MjModel.from_xml_string(env.env.model.get_xml())
-    xml_poses = {}
-    for body in L.fixture_root_bodies(env):
-        bid = mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_BODY, body)
-        xml_poses[body] = dict(pos=m0.body_pos[bid].tolist(), quat=m0.body_quat[bid].tolist())
     written = 0
-    for k in inits:
-        # Episode k's fixture poses: k cheap soft resets after env.seed(SEED), then the hard reset.
-        env.env.hard_reset = False
-        env.seed(SEED)
-        for _ in range(k):
-            L.set_fixture_poses(env.sim.model._model, xml_poses)
-            env.reset()
-        env.env.hard_reset = True
+    # The published loop: env.seed(SEED) once, one hard reset per episode; episode k is the
+    # (k+1)-th reset (its fixture poses depend on every reset before it).
+    assert env.env.hard_reset
+    env.seed(SEED)
+    for k in range(max(inits) + 1):
         env.reset()
+        if k not in inits:
+            continue
         for s in steps:
             if s == 0:
                 state = init_states[k]

@@ -12,7 +12,10 @@ Per task, `OUT/<suite>__<NN>__goal_states/`: states where the goal *is* satisfie
 into their goal configuration by editing qpos and letting them settle, articulated joints set),
   states.npy   (S, 1+nq+nv)    sim states; goal.npy (S, 1+n_terms): the reference predicates
                                evaluated after set_init_state(state) (i.e. on a forwarded state)
-Fixture poses: those of episode k after env.seed(0) (as the Rust env's reset(k, 0)).
+  fixtures.json                the fixture root-body poses of that episode (the Rust env's reset(k, 0) must
+                               put the fixtures exactly there)
+Every episode is recorded on the published loop itself: a freshly constructed env, env.seed(0),
+then one hard reset() per episode index up to the last recorded one (episode k is the (k+1)-th).
 """
 import argparse
 import json
@@ -21,7 +24,7 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 
 import libero_ref as L
-from libero_ref import mujoco, np
+from libero_ref import np
 
 WAIT = np.array([0, 0, 0, 0, 0, 0, -1.0])
 SEED = 0
@@ -60,10 +63,8 @@ def eef(env):
 
 
 def episode(env, init_state, n_steps, seed):
-    """One canonical episode: a hard reset (model rebuilt, robot, controller and gripper new), as
-    the published loops do, then set_init_state and the actions."""
-    env.env.hard_reset = True
-    env.reset()
+    """One canonical episode on an env the published loop has just reset: set_init_state, then the
+    actions."""
     env.set_init_state(init_state)
     acts = actions(n_steps, seed)
     states, eefs, goals = [], [], []
@@ -142,36 +143,32 @@ def goal_states(env, init_state, n_settle=40):
 def record_task(job):
     suite, task_id, inits, n_steps, out = job
     b, task, bddl = L.task_of(suite, task_id)
-    env = L.make_env(bddl)
     init_states = b.get_task_init_states(task_id)
-    xml_poses = None
     summary = []
-    for k in inits:
-        # Fixture poses of episode k after env.seed(SEED): replay k+1 resets' RNG draws.
-        if xml_poses is None:
-            m0 = mujoco.MjModel.from_xml_string(env.env.model.get_xml())
-            xml_poses = {body: dict(pos=m0.body_pos[mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_BODY, body)].tolist(),
-                                    quat=m0.body_quat[mujoco.mj_name2id(m0, mujoco.mjtObj.mjOBJ_BODY, body)].tolist())
-                         for body in L.fixture_root_bodies(env)}
-        # Advance numpy's RNG past episodes 0..k-1 with cheap soft resets (the same draws as hard
-        # resets, verified by build_bundles.py), then the episode's own hard reset.
-        env.env.hard_reset = False
-        env.seed(SEED)
-        for _ in range(k):
-            L.set_fixture_poses(env.sim.model._model, xml_poses)
-            env.reset()
+    # The published loop: a fresh env, env.seed(SEED), one hard reset per episode (episode k's
+    # fixture poses depend on every reset before it, see libero_ref.published_property_samplers).
+    env = L.make_env(bddl)
+    assert env.env.hard_reset
+    env.seed(SEED)
+    for k in range(max(inits) + 1):
+        env.reset()
+        if k not in inits:
+            continue
+        poses = L.fixture_poses(env)
         acts, states, eefs, goals = episode(env, init_states[k], n_steps, seed=1000 * task_id + k)
         d = os.path.join(out, f"{suite}__{task_id:02d}__init{k}")
         os.makedirs(d, exist_ok=True)
         for name, arr in [("actions", acts), ("states", states), ("eef", eefs), ("goal", goals)]:
             np.save(os.path.join(d, f"{name}.npy"), np.asarray(arr, dtype=np.float64))
+        json.dump(poses, open(os.path.join(d, "fixtures.json"), "w"))
         json.dump(dict(suite=suite, task_id=task_id, init_state_id=k, seed=SEED,
                        terms=[" ".join(g) for g in env.env.parsed_problem["goal_state"]]),
                   open(os.path.join(d, "meta.json"), "w"))
         summary.append(dict(init=k, any_success=bool(goals[:, 0].any())))
-    # goal-satisfying states from init state 0
+    env.close()
+    # goal-satisfying states from init state 0, in the scene of episode 0 (a fresh env's first reset)
+    env = L.make_env(bddl)
     env.seed(SEED)
-    env.env.hard_reset = True
     gs = goal_states(env, init_states[0])
     if gs is not None:
         d = os.path.join(out, f"{suite}__{task_id:02d}__goal_states")

@@ -35,10 +35,33 @@ def task_of(suite: str, task_id: int):
 
 
 def make_env(bddl: str, **kw) -> ControlEnv:
-    """The reference env as the published evaluations build it, without cameras (physics only)."""
+    """The reference env as the published evaluations build it, without cameras (physics only).
+
+    Records, right after construction, the object-property samplers of one `_load_model()`
+    (`PROPERTY_SAMPLERS_PER_LOAD`): see [`published_property_samplers`].
+    """
     args = dict(use_camera_obs=False, has_offscreen_renderer=False, has_renderer=False)
     args.update(kw)
-    return ControlEnv(bddl_file_name=bddl, **args)
+    env = ControlEnv(bddl_file_name=bddl, **args)
+    setattr(env, PROPERTY_SAMPLERS_PER_LOAD, list(env.env.object_property_initializers))
+    return env
+
+
+# Attribute of a `make_env` env: the object-property samplers one `_load_model()` appends.
+PROPERTY_SAMPLERS_PER_LOAD = "libero_eval_property_samplers_per_load"
+
+
+def published_property_samplers(env, episode: int) -> list:
+    """`object_property_initializers` as the published loop has it when episode `episode` resets.
+
+    LIBERO's `_setup_placement_initializer` *appends* one `OpenCloseSampler`/`TurnOnOffSampler` per
+    open/close/turnon/turnoff state of the BDDL `:init` at every `_load_model()` and never clears
+    the list (bddl_base_domain.py:653,674). The published loops construct the env (one load), call
+    `env.seed(seed)`, then hard-reset every episode (one more load each), so the reset of episode k
+    runs k+2 copies of the list, each drawing from numpy's global RNG before the fixtures are
+    placed. Tasks whose `:init` has no such state (36 of the 40 canonical ones) draw nothing here.
+    """
+    return getattr(env, PROPERTY_SAMPLERS_PER_LOAD) * (episode + 2)
 
 
 def fixture_root_bodies(env) -> list:
@@ -63,33 +86,77 @@ def set_fixture_poses(model, poses: dict):
 
 
 def fixture_pose_sequence(env, seed: int, n_episodes: int, xml_poses: dict) -> list:
-    """Fixture poses of episodes 0..n-1 after `env.seed(seed)` and one `reset()` per episode.
+    """Fixture poses of episodes 0..n-1 of the published loop after `env.seed(seed)`.
 
-    A hard reset rebuilds the model (0.7 s); a soft reset with the fixture bodies first put back at
-    their XML poses (what a rebuilt model has) makes the same RNG draws in ~10 ms. The set-up
-    verifies this equality against real hard resets on a sample (`verify_soft_resets`).
+    A hard reset rebuilds the model (0.6-1.7 s); a soft reset makes the same RNG draws in ~10 ms
+    when it starts from what a rebuilt model has: the fixture bodies at their XML poses, and the
+    object-property samplers as many times over as the published loop has loaded the model
+    (`published_property_samplers`). `published_loop_pose_sequence` is the real thing, and the
+    set-up checks the two agree (build_bundles.py).
     """
     inner = env.env
-    saved = inner.hard_reset
+    saved = inner.hard_reset, list(inner.object_property_initializers)
     inner.hard_reset = False
     try:
         env.seed(seed)
         seq = []
-        for _ in range(n_episodes):
+        for k in range(n_episodes):
             set_fixture_poses(env.sim.model._model, xml_poses)
+            inner.object_property_initializers = published_property_samplers(env, k)
             env.reset()
             seq.append(fixture_poses(env))
         return seq
     finally:
-        inner.hard_reset = saved
+        inner.hard_reset, inner.object_property_initializers = saved
 
 
-def hard_reset_pose_sequence(env, seed: int, n_episodes: int) -> list:
-    """The same sequence the expensive, canonical way (what OpenVLA/openpi loops do)."""
-    assert env.env.hard_reset
-    env.seed(seed)
-    seq = []
-    for _ in range(n_episodes):
+def published_loop_pose_sequence(bddl: str, seed: int, n_episodes: int) -> list:
+    """The published loop itself (OpenVLA's and openpi's LIBERO scripts): a freshly constructed
+    env, `env.seed(seed)` once, then one hard `reset()` per episode; its fixture poses per episode."""
+    env = make_env(bddl)
+    try:
+        assert env.env.hard_reset
+        env.seed(seed)
+        seq = []
+        for _ in range(n_episodes):
+            env.reset()
+            seq.append(fixture_poses(env))
+        return seq
+    finally:
+        env.close()
+
+
+def soft_reset_rng_states(env, seed: int, n_episodes: int, xml_poses: dict) -> list:
+    """numpy's global RNG state before each episode's reset on the soft-reset path (k = 0..n)."""
+    inner = env.env
+    saved = inner.hard_reset, list(inner.object_property_initializers)
+    inner.hard_reset = False
+    try:
+        env.seed(seed)
+        states = [np.random.get_state()]
+        for k in range(n_episodes):
+            set_fixture_poses(env.sim.model._model, xml_poses)
+            inner.object_property_initializers = published_property_samplers(env, k)
+            env.reset()
+            states.append(np.random.get_state())
+        return states
+    finally:
+        inner.hard_reset, inner.object_property_initializers = saved
+
+
+def published_hard_reset_at(env, episode: int, rng_state) -> tuple:
+    """One real hard reset as the published loop makes it at `episode`, from the RNG state it has
+    then: the env holds the property samplers of episode+1 loads, and the reset adds the last.
+    Returns (fixture poses, RNG state after), so a check can compare both the poses and the
+    number of draws without replaying the episodes before it."""
+    inner = env.env
+    saved = inner.hard_reset
+    inner.hard_reset = True
+    try:
+        inner.object_property_initializers = getattr(env, PROPERTY_SAMPLERS_PER_LOAD) * (episode + 1)
+        np.random.set_state(rng_state)
         env.reset()
-        seq.append(fixture_poses(env))
-    return seq
+        assert len(inner.object_property_initializers) == len(published_property_samplers(env, episode))
+        return fixture_poses(env), np.random.get_state()
+    finally:
+        inner.hard_reset = saved

@@ -251,6 +251,17 @@ impl LiberoEnv {
         &self.goal.term_names
     }
 
+    /// The fixture root bodies' poses in the live model (`body_pos`, `body_quat`): what the last
+    /// reset put there, for parity checks against the reference loop's scene.
+    pub fn fixture_poses(&self) -> Result<std::collections::BTreeMap<String, Pose>, SimError> {
+        let mut out = std::collections::BTreeMap::new();
+        for body in &self.bundle.task.fixture_bodies {
+            let id = scene::body_id(&self.model, body)?;
+            out.insert(body.clone(), Pose { pos: self.model.body_pos()[id], quat: self.model.body_quat()[id] });
+        }
+        Ok(out)
+    }
+
     /// Object and fixture names, in the order of [`Observation::object_poses`].
     pub fn object_names(&self) -> impl Iterator<Item = &str> {
         self.object_bodies.iter().map(|(n, _)| n.as_str())

@@ -1,5 +1,8 @@
 -- One row per episode: its outcome under one success definition and one episode cap, derived
--- from the stored steps (never from a stored verdict), so a finished run can be re-scored.
+-- from the stored step rows, the ground truth. `score.sql` derives the same from the episodes'
+-- compact goal evidence and is what the commands use; this one scores runs written before
+-- tables v3, and the tests hold the two equal on real runs. To score any run from its steps,
+-- copy queries/, put this file's text in score.sql and set LIBERO_QUERIES to that folder.
 --
 -- Parameters, substituted and validated by `pipeline results` / `pipeline sql`:
 --   {{success}}  'any-step'  : the goal held at some policy step within the cap (what the

@@ -70,6 +70,7 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
             n_policy_steps: MAX_STEPS,
             first_success_step: first,
             final_goal: goal(outcome, MAX_STEPS - 1),
+            goal_changes: libero_udfs::goal_evidence::GoalChanges::from_goals((0..MAX_STEPS).map(|p| goal(outcome, p))),
             goal_terms: vec!["on bowl_1 plate_1".into()],
             objects_of_interest: vec!["bowl".into()],
             error: None,

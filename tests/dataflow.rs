@@ -300,6 +300,28 @@ fn a_killed_run_resumes_without_rerunning_or_duplicating_episodes() {
 }
 
 #[test]
+fn a_run_made_on_older_bundles_is_refused_on_resume_with_the_reason() {
+    let d = tmp("old-bundles");
+    let spec = d.join("specs.parquet");
+    write_parquet(&spec, spec_columns(&["libero_spatial"], &[4], &[1], &[7]));
+    let run = d.join("run");
+    let args = ["run", spec.to_str().unwrap(), "--out", run.to_str().unwrap(), "--policy", "lift", "--max-steps", "3"];
+    ok(pipeline(&args));
+    // The same run as a format-1 build wrote it.
+    let path = run.join("manifest.json");
+    let mut manifest: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    manifest["bundle_format_version"] = 1.into();
+    std::fs::write(&path, serde_json::to_vec(&manifest).unwrap()).unwrap();
+    let out = pipeline(&args);
+    assert!(!out.status.success(), "a format-1 run was resumed");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("task bundles of format 1") && err.contains("published loop") && err.contains("new --out"),
+        "{err}"
+    );
+}
+
+#[test]
 fn an_erroring_episode_becomes_an_error_row_and_the_run_goes_on() {
     let d = tmp("errors");
     let spec = d.join("specs.parquet");
@@ -320,6 +342,7 @@ fn an_erroring_episode_becomes_an_error_row_and_the_run_goes_on() {
     let scored =
         sql(&run, "SELECT count(*), sum(CAST(errored AS INT)), sum(CAST(scored_success AS INT)) FROM scored", &[]);
     assert_eq!(scored[0], vec!["2", "2", "0"]);
+    libero_e2e::assert_goal_evidence_matches_steps(&run, 2);
 }
 
 /// A run written directly with the library's builders, where the success definitions disagree:
@@ -364,6 +387,7 @@ fn synthetic_run() -> PathBuf {
             n_policy_steps: 100,
             first_success_step: first,
             final_goal: goal(99),
+            goal_changes: libero_udfs::goal_evidence::GoalChanges::from_goals((0..100).map(goal)),
             goal_terms: vec!["on bowl_1 plate_1".into()],
             objects_of_interest: vec!["bowl".into()],
             error: None,
@@ -387,7 +411,7 @@ fn synthetic_run() -> PathBuf {
         git_revision: "test".into(),
         pipeline_version: "0".into(),
         mujoco_version: "3.3.7".into(),
-        bundle_format_version: 1,
+        bundle_format_version: libero_schema::bundle_format::BUNDLE_FORMAT_VERSION,
         bundles_hash: "none".into(),
         policy: "synthetic".into(),
         policy_identity: serde_json::json!({}),
@@ -471,4 +495,75 @@ print(steps.num_rows, episodes.num_rows, pl_eps.height, n_duck, k_duck, pl_steps
     assert_eq!(v[4], k_rust);
     assert_eq!(v[5], 200);
     assert!(v[6] >= 3, "object poses per step: {}", v[6]);
+}
+
+/// A bundle file damaged after the set-up (here a cut-short scene.xml) stops the run before any
+/// episode, naming the file and the command that rebuilds its suite.
+#[test]
+fn a_damaged_bundle_file_is_refused_before_any_episode() {
+    let d = tmp("damaged-bundle");
+    let real = libero_e2e::bundles().root().to_path_buf();
+    let copy = d.join("bundles");
+    std::fs::create_dir_all(copy.join("libero_object")).unwrap();
+    std::fs::copy(real.join("index.json"), copy.join("index.json")).unwrap();
+    std::os::unix::fs::symlink(real.join("assets").canonicalize().unwrap(), copy.join("assets")).unwrap();
+    let task = copy.join("libero_object/00");
+    std::fs::create_dir_all(&task).unwrap();
+    for f in std::fs::read_dir(real.join("libero_object/00")).unwrap() {
+        let f = f.unwrap();
+        std::fs::copy(f.path(), task.join(f.file_name())).unwrap();
+    }
+    let scene = std::fs::read(task.join("scene.xml")).unwrap();
+    std::fs::write(task.join("scene.xml"), &scene[..scene.len() / 2]).unwrap();
+    let spec = d.join("specs.parquet");
+    write_parquet(&spec, spec_columns(&["libero_object"], &[0], &[0], &[7]));
+    let run = d.join("run");
+    let out = pipeline(&[
+        "run",
+        spec.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--policy",
+        "lift",
+        "--bundles",
+        copy.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success(), "a run on a damaged bundle started");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("scene.xml") && err.contains("./setup.sh --suites libero_object"), "{err}");
+    assert!(!run.join("episodes").exists(), "episodes were run");
+}
+
+/// A part cut short after the run (a full disk, an interrupted copy): queries name it and leave
+/// its episode out; the resume sets both parts of that episode aside (nothing deleted) and runs it
+/// again, after which the run is whole.
+#[test]
+fn a_damaged_part_is_named_skipped_by_queries_and_rerun_by_the_resume() {
+    let d = tmp("damaged-part");
+    let spec = d.join("specs.parquet");
+    write_parquet(&spec, spec_columns(&["libero_object"; 3], &[0, 0, 0], &[0, 1, 2], &[7, 7, 7]));
+    let run = d.join("run");
+    let args = ["run", spec.to_str().unwrap(), "--out", run.to_str().unwrap(), "--policy", "lift", "--max-steps", "5"];
+    ok(pipeline(&args));
+    let part = "libero_object-t00-i001-s7.parquet";
+    let path = run.join("steps").join(part);
+    assert!(path.exists(), "expected part {}", path.display());
+    let bytes = std::fs::read(&path).unwrap();
+    std::fs::write(&path, &bytes[..bytes.len() - 100]).unwrap();
+
+    let out = pipeline(&["sql", "SELECT count(*) FROM episodes", "--run", run.to_str().unwrap(), "--csv"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains(&format!("steps/{part}")) && err.contains("damaged"), "{err}");
+    assert_eq!(String::from_utf8_lossy(&out.stdout).lines().nth(1), Some("2"), "the damaged episode is left out");
+
+    let out = pipeline(&args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("set aside") && err.contains(part), "{err}");
+    assert!(run.join("damaged/steps").join(part).exists() && run.join("damaged/episodes").join(part).exists());
+    let rows = sql(&run, "SELECT count(*), count(DISTINCT episode_key) FROM episodes", &[]);
+    assert_eq!(rows[0], ["3", "3"]);
+    let steps = sql(&run, "SELECT count(*) FROM steps", &[]);
+    assert_eq!(steps[0][0], (3 * 15).to_string());
 }

@@ -56,6 +56,7 @@ fn the_expert_solves_real_tasks_and_its_grasps_are_in_the_stored_steps() {
     let m = sql(&run, "SELECT policy, policy_identity FROM manifest", &[]);
     assert_eq!(m[0][0], "expert");
     assert!(m[0].join(",").contains("privileged"), "{m:?}");
+    libero_e2e::assert_goal_evidence_matches_steps(&run, 90);
 }
 
 #[test]
@@ -98,6 +99,9 @@ fn real_expert_episodes_where_any_step_and_last_step_disagree() {
     // The rollout recorded which objects matter: the bottle and the rack that owns the region.
     let interest = sql(&run, "SELECT array_to_string(objects_of_interest, ' ') FROM episodes", &[]);
     assert_eq!(interest, [["wine_bottle_1 wine_rack_1"]]);
+    // Re-scoring reads the episode's goal changes; they say what the steps say, for both
+    // definitions and a cap between the first success and the last step.
+    libero_e2e::assert_goal_evidence_matches_steps(&run, (first + 20) as u32);
 }
 
 /// The expert forced to let go early in its first carry (`--policy expert-drop`): a real drop, on

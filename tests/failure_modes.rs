@@ -128,12 +128,14 @@ fn run() -> PathBuf {
             let mut steps = StepsBatchBuilder::new(key.clone(), OBJECTS.iter().map(|s| s.to_string()).collect());
             let last = if scene == Crashes { WAIT + 10 } else { WAIT + MAX_STEPS };
             let (mut first, mut final_goal) = (None, false);
+            let mut goal_changes = libero_udfs::goal_evidence::GoalChanges::default();
             for t in 0..last {
                 let s = state(scene, t);
                 let goal = s.terms.iter().all(|&x| x);
                 let p = t.checked_sub(WAIT);
                 if let Some(p) = p {
                     final_goal = goal;
+                    goal_changes.record(p, goal);
                     if goal && first.is_none() {
                         first = Some(p);
                     }
@@ -159,6 +161,7 @@ fn run() -> PathBuf {
                 n_policy_steps: last - WAIT,
                 first_success_step: first,
                 final_goal,
+                goal_changes,
                 goal_terms: vec!["on bowl_1 plate_1".into(), "open drawer_1".into()],
                 objects_of_interest: vec!["bowl_1".into(), "plate_1".into()],
                 error: (scene == Crashes)

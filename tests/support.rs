@@ -129,7 +129,7 @@ pub fn write_constructed_manifest(dir: &Path, policy: &str, num_steps_wait: u32)
         git_revision: "test".into(),
         pipeline_version: "0".into(),
         mujoco_version: "3.3.7".into(),
-        bundle_format_version: 1,
+        bundle_format_version: libero_schema::bundle_format::BUNDLE_FORMAT_VERSION,
         bundles_hash: "none (constructed run)".into(),
         policy: policy.into(),
         policy_identity: serde_json::json!({"kind": "constructed"}),
@@ -140,4 +140,50 @@ pub fn write_constructed_manifest(dir: &Path, policy: &str, num_steps_wait: u32)
         control_freq_hz: 20,
     };
     std::fs::write(dir.join("manifest.json"), serde_json::to_vec(&manifest).unwrap()).unwrap();
+}
+
+/// The compact goal evidence of a real run (`episodes.goal_changes`) against its step rows, the
+/// ground truth: the goal it gives at every stored policy step equals the stored one, and the
+/// `scored` view from the evidence (`queries/score.sql`) equals the one from the steps
+/// (`queries/score_from_steps.sql`, put in place of score.sql through `LIBERO_QUERIES`) under
+/// both definitions, with and without a shorter cap.
+pub fn assert_goal_evidence_matches_steps(run: &Path, cap: u32) {
+    let wrong = sql_rows(
+        run,
+        "SELECT count(*) FROM steps s JOIN episodes e ON s.episode_key = e.episode_key \
+         WHERE s.policy_step IS NOT NULL AND goal_held_at(e.goal_changes, s.policy_step) <> s.goal",
+        &[],
+    );
+    assert_eq!(wrong[0][0], "0", "policy steps where goal_changes gives another goal than the step row");
+    let counts = sql_rows(
+        run,
+        "SELECT (SELECT count(*) FROM steps WHERE policy_step IS NOT NULL), (SELECT sum(n_policy_steps) FROM episodes)",
+        &[],
+    );
+    assert_eq!(counts[0][0], counts[0][1], "policy step rows vs n_policy_steps");
+
+    let from_steps = test_dir("queries-from-steps", &format!("{}", run.display()).replace('/', "_"));
+    for f in std::fs::read_dir(repo_root().join("queries")).unwrap() {
+        let f = f.unwrap();
+        std::fs::copy(f.path(), from_steps.join(f.file_name())).unwrap();
+    }
+    std::fs::copy(repo_root().join("queries/score_from_steps.sql"), from_steps.join("score.sql")).unwrap();
+    let query = "SELECT episode_key, scored_success, errored, episode_length_cap FROM scored ORDER BY episode_key";
+    let cap = cap.to_string();
+    for extra in
+        [vec![], vec!["--success", "last-step"], vec!["--cap", &cap], vec!["--success", "last-step", "--cap", &cap]]
+    {
+        let mut args = vec!["sql", query, "--run", run.to_str().unwrap(), "--csv"];
+        args.extend_from_slice(&extra);
+        let evidence = ok(pipeline(&args));
+        let steps = ok(Command::new(pipeline_bin())
+            .args(&args)
+            .current_dir(repo_root())
+            .env("LIBERO_QUERIES", &from_steps)
+            .output()
+            .expect("run pipeline"));
+        assert_eq!(evidence, steps, "scored from goal_changes vs from the steps, {extra:?}");
+        assert!(evidence.lines().count() > 1, "no episodes scored");
+    }
+    let _ = std::fs::remove_dir_all(&from_steps);
 }

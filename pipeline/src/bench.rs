@@ -19,6 +19,9 @@ pub enum Bench {
     Sim(SimArgs),
     /// Camera frames/s (agentview + eye-in-hand): Rust renderer vs the Python reference's.
     Render(RenderArgs),
+    /// A stored run's figures: episodes/s and peak RSS of its invocations, files per table, and
+    /// the wall time of re-scoring it (results under each definition, report).
+    Run(crate::bench_run::RunArgs),
 }
 
 #[derive(clap::Args)]
@@ -57,6 +60,7 @@ pub fn run(bundles: &Path, bench: Bench) -> Result<()> {
     match bench {
         Bench::Sim(args) => sim(bundles, args),
         Bench::Render(args) => render(bundles, args),
+        Bench::Run(args) => crate::bench_run::run(args),
     }
 }
 

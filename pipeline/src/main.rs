@@ -4,6 +4,9 @@
 //! own module; this file only parses arguments and dispatches.
 
 mod bench;
+mod bench_run;
+mod bundles_location;
+mod compact;
 mod compare;
 mod failures;
 mod media;
@@ -26,9 +29,10 @@ use std::path::PathBuf;
 #[derive(Parser)]
 #[command(name = "pipeline", version, about)]
 struct Cli {
-    /// Folder of task bundles (built by ./setup.sh).
-    #[arg(long, global = true, default_value = "data/bundles", env = "LIBERO_BUNDLES")]
-    bundles: PathBuf,
+    /// Folder of task bundles (built by ./setup.sh). Default: data/bundles here, else that of the
+    /// checkout this binary was built in, else the newest in the set-up's cache.
+    #[arg(long, global = true, env = "LIBERO_BUNDLES")]
+    bundles: Option<PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
@@ -47,6 +51,8 @@ enum Command {
     Failures(failures::Args),
     /// results.csv, per-task and failure tables and a self-contained report.html for one or more runs.
     Report(report::Args),
+    /// Merge a run's one-episode parts into a few large Parquet files per table (atomic, resumable).
+    Compact(compact::Args),
     /// Ad-hoc SQL over a run (tables specs, steps, episodes, manifest, scored, published).
     Sql(sql::Args),
     /// Paired comparison of two runs on their common episode keys (McNemar, Newcombe interval).
@@ -66,19 +72,22 @@ enum Command {
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    let bundles = || bundles_location::resolve(cli.bundles.as_deref());
     match cli.command {
-        Command::Tasks(args) => tasks::run(&cli.bundles, args),
-        Command::Specs(args) => specs::run(&cli.bundles, args),
-        Command::Run(args) => run::run(&cli.bundles, args),
+        Command::Tasks(args) => tasks::run(&bundles()?, args),
+        Command::Specs(args) => specs::run(&bundles()?, args),
+        Command::Run(args) => run::run(&bundles()?, args),
         Command::Results(args) => results::run(args),
         Command::Failures(args) => failures::run(args),
-        Command::Report(args) => report::run(&cli.bundles, args),
+        Command::Report(args) => report::run(&bundles()?, args),
         Command::Sql(args) => sql::run(args),
+        Command::Compact(args) => compact::run(args),
         Command::Compare(args) => compare::run(args),
         Command::SampleSize(args) => sample_size::run(args),
-        Command::Smoke(args) => smoke::run(&cli.bundles, args),
-        Command::Video(args) => video::run(&cli.bundles, args),
-        Command::Videos(args) => video::run_selected(&cli.bundles, args),
-        Command::Bench(b) => bench::run(&cli.bundles, b),
+        Command::Smoke(args) => smoke::run(&bundles()?, args),
+        Command::Video(args) => video::run(&bundles()?, args),
+        Command::Videos(args) => video::run_selected(&bundles()?, args),
+        Command::Bench(bench::Bench::Run(args)) => bench_run::run(args),
+        Command::Bench(b) => bench::run(&bundles()?, b),
     }
 }

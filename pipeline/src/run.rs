@@ -16,10 +16,12 @@ use libero_policies::PolicySpec;
 use libero_schema::protocol::{CONTROL_FREQ_HZ, NUM_STEPS_WAIT, SUBSTEPS_PER_STEP};
 use libero_schema::{RunManifest, Suite, tables};
 use libero_sim::bundle::BundleSet;
+use libero_udfs::compaction;
 use libero_udfs::rollout::{RolloutContext, rollout_udf};
 use libero_udfs::run_store::{RunStore, parquet_bytes};
+use libero_udfs::steps_batch::EpisodeKey;
 use sha2::{Digest, Sha256};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -33,8 +35,9 @@ pub struct Args {
     /// Policy to evaluate: random, lift (baselines) or nan-at:<step> (diagnostic).
     #[arg(long)]
     policy: PolicySpec,
-    /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400).
-    #[arg(long)]
+    /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400);
+    /// at least 1.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     max_steps: Option<u32>,
     /// Wait steps before the policy acts.
     #[arg(long, default_value_t = NUM_STEPS_WAIT)]
@@ -51,6 +54,10 @@ pub struct Args {
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
     let set = Arc::new(BundleSet::open(bundles)?);
     let specs = specs::load_specs(&args.specs, &set)?;
+    // A bundle file damaged since the set-up stops the run here, named, not in every episode.
+    let tasks: BTreeSet<(Suite, u32)> =
+        specs.keys.iter().filter_map(|k| Some((k.suite.parse().ok()?, k.task_id as u32))).collect();
+    libero_sim::bundle_integrity::verify_tasks(&set, &tasks)?;
     if let Some(j) = args.jobs {
         rayon::ThreadPoolBuilder::new().num_threads(j.max(1)).build_global().ok();
     }
@@ -64,7 +71,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         pipeline_version: env!("CARGO_PKG_VERSION").to_string(),
         mujoco_version: libero_sim::mujoco_version(),
         bundle_format_version: libero_schema::bundle_format::BUNDLE_FORMAT_VERSION,
-        bundles_hash: bundles_hash(&set)?,
+        bundles_hash: bundles_hash(&set, &specs.keys)?,
         policy: args.policy.name(),
         policy_identity: args.policy.resolve_identity()?,
         num_steps_wait: args.wait_steps as i32,
@@ -78,7 +85,20 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async {
         let store = RunStore::connect(&args.out).await?;
+        compaction::recover(&store).await?;
+        if let Some(c) = compaction::live_lock(&store, "compaction.lock").await? {
+            bail!("{} is being compacted by pid {} on {}; run it when that has finished", store.url(), c.pid, c.host);
+        }
         match store.read_manifest().await? {
+            Some(stored) if stored.bundle_format_version != manifest.bundle_format_version => {
+                bail!(
+                    "{} holds a run made on task bundles of format {}; this build runs format {}, and {}.\nIts episodes cannot be resumed or mixed with new ones: run into a new --out (re-run the whole spec table).",
+                    store.url(),
+                    stored.bundle_format_version,
+                    manifest.bundle_format_version,
+                    libero_schema::bundle_format::format_change(stored.bundle_format_version)
+                );
+            }
             Some(stored) if stored.run_config != manifest.run_config => {
                 bail!(
                     "{} holds a run with another configuration:\n  {}\nUse another --out, or re-run with the stored configuration to resume it.",
@@ -92,7 +112,14 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         write_manifest(&store, &manifest).await?;
         store.put("specs.parquet", parquet_bytes(&specs.batch, None)?).await?;
 
-        let finished = store.part_names("episodes").await?;
+        // A damaged part (cut short by a full disk, say) would count its episode as finished and
+        // then fail every query: set its episode's parts aside, named, so this run re-runs it.
+        for part in store.damaged_parts().await? {
+            for moved in store.set_aside(&part.name).await? {
+                eprintln!("damaged part {part}: set aside {moved}; its episode runs again");
+            }
+        }
+        let finished = compaction::finished_part_names(&store).await?;
         let pending: Vec<u32> = (0..specs.keys.len() as u32)
             .filter(|&i| !finished.contains(&specs.keys[i as usize].part_name()))
             .collect();
@@ -107,35 +134,106 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             manifest.run_config
         );
         if !pending.is_empty() {
-            let progress = ProgressBar::new(pending.len() as u64).with_style(
-                ProgressStyle::with_template(
-                    "{elapsed_precise} [{bar:30}] {pos}/{len} episodes · {msg} · ETA {eta}",
-                )?
-                .progress_chars("=> "),
-            );
-            progress.set_message("success 0/0");
-            let ctx = Arc::new(RolloutContext::new(
-                set.clone(),
-                args.policy.clone(),
-                max_steps.clone(),
-                args.wait_steps,
-                args.stop_on_success,
-                manifest.run_config.clone(),
-                serde_json::to_string(&manifest)?,
-                store.clone(),
-                tokio::runtime::Handle::current(),
-                progress.clone(),
-            ));
-            let pending_batch = arrow::compute::take_record_batch(&specs.batch, &UInt32Array::from(pending))?;
-            run_rollouts(ctx, pending_batch, &specs.extras).await?;
-            progress.finish();
-            // whether the batched policy's forwards were full (?batch=N and --jobs)
-            for (name, stats) in libero_policies::batching::shared_batcher_stats() {
-                eprintln!("batched policy {name}: {}", stats.summary());
-            }
+            // While this runs, `pipeline compact` refuses the run (compaction::WriterLock).
+            let lock = compaction::WriterLock::this_process(now_rfc3339());
+            store.put("writer.json", serde_json::to_vec(&lock)?.into()).await?;
+            let ran = run_pending(&args, &set, &specs, &manifest, &store, &max_steps, &tasks, pending).await;
+            store.delete_if_present("writer.json").await?;
+            ran?;
         }
         print_results(&args.out, &args.policy).await
     })
+}
+
+/// Run the pending episodes through the rollout UDF, then record what this invocation did.
+#[allow(clippy::too_many_arguments)]
+async fn run_pending(
+    args: &Args,
+    set: &Arc<BundleSet>,
+    specs: &specs::Specs,
+    manifest: &RunManifest,
+    store: &RunStore,
+    max_steps: &BTreeMap<Suite, u32>,
+    tasks: &BTreeSet<(Suite, u32)>,
+    pending: Vec<u32>,
+) -> Result<()> {
+    {
+        let progress = ProgressBar::new(pending.len() as u64).with_style(
+            ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} episodes · {msg} · ETA {eta}")?
+                .progress_chars("=> "),
+        );
+        progress.set_message("success 0/0");
+        let ctx = Arc::new(RolloutContext::new(
+            set.clone(),
+            args.policy.clone(),
+            max_steps.clone(),
+            args.wait_steps,
+            args.stop_on_success,
+            manifest.run_config.clone(),
+            serde_json::to_string(&manifest)?,
+            store.clone(),
+            tokio::runtime::Handle::current(),
+            progress.clone(),
+        ));
+        let n_pending = pending.len();
+        let pending_batch = arrow::compute::take_record_batch(&specs.batch, &UInt32Array::from(pending))?;
+        let started = (now_rfc3339(), std::time::Instant::now());
+        run_rollouts(ctx.clone(), pending_batch, &specs.extras).await?;
+        progress.finish();
+        let record = SessionRecord {
+            started_at: started.0,
+            wall_s: started.1.elapsed().as_secs_f64(),
+            episodes: n_pending,
+            tasks: tasks.len(),
+            workers: rayon::current_num_threads(),
+            task_compiles: ctx.task_compiles(),
+            peak_rss_bytes: peak_rss_bytes(),
+            host: std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default().trim().to_string(),
+        };
+        eprintln!(
+            "{} episodes in {:.1} s ({:.2} episodes/s on {} workers); peak RSS {:.2} GB; task models compiled: {} for {} tasks",
+            record.episodes,
+            record.wall_s,
+            record.episodes as f64 / record.wall_s,
+            record.workers,
+            record.peak_rss_bytes.unwrap_or(0) as f64 / 1e9,
+            record.task_compiles,
+            record.tasks
+        );
+        let name = format!("sessions/{}-{}.json", record.started_at.replace(':', ""), std::process::id());
+        store.put(&name, serde_json::to_vec_pretty(&record)?.into()).await?;
+        // whether the batched policy's forwards were full (?batch=N and --jobs)
+        for (name, stats) in libero_policies::batching::shared_batcher_stats() {
+            eprintln!("batched policy {name}: {}", stats.summary());
+        }
+    }
+    Ok(())
+}
+
+/// What one `pipeline run` invocation did, stored as `RUN/sessions/<start>-<pid>.json` (a run may
+/// take several, resumed after a kill): the throughput and memory figures `pipeline bench run`
+/// reports, kept with the run they describe.
+#[derive(serde::Serialize, serde::Deserialize)]
+pub struct SessionRecord {
+    pub started_at: String,
+    pub wall_s: f64,
+    /// Episodes this invocation ran (the pending ones).
+    pub episodes: usize,
+    /// Distinct tasks of the spec table.
+    pub tasks: usize,
+    pub workers: usize,
+    pub task_compiles: u64,
+    /// The process's peak resident set (Linux VmHWM), the whole run included.
+    pub peak_rss_bytes: Option<u64>,
+    pub host: String,
+}
+
+/// Peak resident set size of this process so far (Linux `VmHWM`), in bytes.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }
 
 /// The dataflow: the pending spec rows as a table, `rollout(...)` over them.
@@ -194,15 +292,25 @@ async fn print_results(location: &str, policy: &PolicySpec) -> Result<()> {
     Ok(())
 }
 
-/// sha256 of the bundles' index and every task's provenance (which hashes every input).
-fn bundles_hash(set: &BundleSet) -> Result<String> {
-    let bundles = set.root();
+/// The identity of the bundles a run uses: sha256 over the index rows and provenance of the tasks
+/// its spec table names. Provenance holds the hashes of every input and output file of a bundle
+/// (scene, init states, fixture poses, task.json, assets), so equal identities mean equal scenes.
+/// Build timings and `checks` are left out: they describe a build, they do not change it (a
+/// rebuild or a later `verify_bundles.py` keeps the identity); other tasks built later (e.g.
+/// `--suites libero_90`) do not change a run's identity either.
+fn bundles_hash(set: &BundleSet, keys: &[EpisodeKey]) -> Result<String> {
+    let used: BTreeSet<(&str, i32)> = keys.iter().map(|k| (k.suite.as_str(), k.task_id)).collect();
     let mut h = Sha256::new();
-    let index = bundles.join("index.json");
-    h.update(std::fs::read(&index).with_context(|| format!("reading {}", index.display()))?);
-    for t in set.tasks() {
-        let p = bundles.join(&t.path).join("provenance.json");
-        h.update(std::fs::read(&p).with_context(|| format!("reading {}", p.display()))?);
+    for t in set.tasks().iter().filter(|t| used.contains(&(t.suite.as_str(), t.task_id as i32))) {
+        let p = set.root().join(&t.path).join("provenance.json");
+        let text = std::fs::read_to_string(&p).with_context(|| format!("reading {}", p.display()))?;
+        let mut prov: serde_json::Value =
+            serde_json::from_str(&text).with_context(|| format!("{} is not JSON", p.display()))?;
+        if let Some(o) = prov.as_object_mut() {
+            o.remove("checks");
+            o.remove("built_seconds");
+        }
+        h.update(format!("{}/{}\n{}\n", t.suite, t.task_id, prov).as_bytes());
     }
     Ok(format!("{:x}", h.finalize()))
 }

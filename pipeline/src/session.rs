@@ -10,7 +10,7 @@ use libero_schema::tables;
 use libero_udfs::run_store::RunStore;
 use std::sync::Arc;
 
-/// How episodes are scored from their steps (`queries/score.sql`).
+/// How episodes are scored from their goal evidence (`queries/score.sql`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum SuccessDefinition {
     /// Success if the goal held at any policy step within the cap (the published scripts stop at
@@ -71,6 +71,7 @@ pub mod queries {
     use anyhow::{Context, Result};
 
     pub const SCORE: &str = "score";
+    pub const SCORE_FROM_STEPS: &str = "score_from_steps";
     pub const RESULTS: &str = "results";
     pub const RESULTS_BY_TASK: &str = "results_by_task";
     pub const COMPARE_PAIRS: &str = "compare_pairs";
@@ -84,6 +85,7 @@ pub mod queries {
 
     const COMPILED: &[(&str, &str)] = &[
         (SCORE, include_str!("../../queries/score.sql")),
+        (SCORE_FROM_STEPS, include_str!("../../queries/score_from_steps.sql")),
         (RESULTS, include_str!("../../queries/results.sql")),
         (RESULTS_BY_TASK, include_str!("../../queries/results_by_task.sql")),
         (COMPARE_PAIRS, include_str!("../../queries/compare_pairs.sql")),
@@ -161,11 +163,21 @@ pub mod queries {
 }
 
 /// Open a session on the run at `location`, with `scored` defined by `success` and `cap`.
+/// A session with our functions and the `published` table but no run: for SQL that needs none.
+pub fn functions_only() -> Result<SessionContext> {
+    let ctx = SessionContext::new_with_config(SessionConfig::new().with_information_schema(true));
+    libero_udfs::register_analysis_functions(&ctx);
+    crate::published::register(&ctx)?;
+    Ok(ctx)
+}
+
 pub async fn open(location: &str, success: SuccessDefinition, cap: Option<u32>) -> Result<(SessionContext, RunStore)> {
     let store = RunStore::connect(location).await?;
-    if store.read_manifest().await?.is_none() {
+    // A compaction killed after its commit is finished first, so no row is seen twice.
+    libero_udfs::compaction::recover(&store).await?;
+    let Some(manifest) = store.read_manifest().await? else {
         anyhow::bail!("{} holds no run (no manifest.json); start one with `pipeline run`", store.url());
-    }
+    };
     let ctx = SessionContext::new_with_config(SessionConfig::new().with_information_schema(true));
     if store.base_url().scheme() != "file" {
         ctx.register_object_store(store.base_url(), store.object_store());
@@ -182,26 +194,51 @@ pub async fn open(location: &str, success: SuccessDefinition, cap: Option<u32>) 
             spec_schema.fields().iter().filter(|f| !tables::SPEC_COLUMNS.iter().any(|(n, _)| n == f.name())).cloned(),
         );
     }
-    register_listing(&ctx, &store, "steps", tables::steps()).await?;
-    register_listing(&ctx, &store, "episodes", Arc::new(arrow::datatypes::Schema::new(episode_fields))).await?;
+    // Damaged parts (see RunStore::damaged_parts) are skipped, with both parts of their episode,
+    // and named: the numbers then cover the other episodes, and `pipeline run` re-runs these.
+    let damaged = store.damaged_parts().await?;
+    let skip: std::collections::BTreeSet<String> = damaged.iter().map(|d| d.name.clone()).collect();
+    for d in &damaged {
+        eprintln!(
+            "warning: {} has a damaged part {d}; its episode is left out of every table here              (`pipeline run` with the same spec table sets it aside and runs the episode again)",
+            store.url()
+        );
+    }
+    register_listing(&ctx, &store, "steps", tables::steps(), &skip).await?;
+    register_listing(&ctx, &store, "episodes", Arc::new(arrow::datatypes::Schema::new(episode_fields)), &skip).await?;
     if store.get("manifest.parquet").await?.is_some() {
         ctx.register_parquet("manifest", store.table_url("manifest.parquet"), ParquetReadOptions::default()).await?;
     }
-    define_scored(&ctx, success, cap).await?;
+    let evidence = if manifest.tables_version >= 3 { Evidence::GoalChanges } else { Evidence::Steps };
+    define_scored(&ctx, success, cap, evidence).await?;
     // Views only: nothing is computed until a query reads them.
     queries::run(&ctx, queries::FAILURE_MODES).await?;
     Ok((ctx, store))
 }
 
+/// Register a table folder of the run (`steps/`, `episodes/`): the whole folder, or, when some
+/// parts must be skipped, the list of the others.
 async fn register_listing(
     ctx: &SessionContext,
     store: &RunStore,
     name: &str,
     schema: arrow::datatypes::SchemaRef,
+    skip: &std::collections::BTreeSet<String>,
 ) -> Result<()> {
-    let url = ListingTableUrl::parse(store.table_url(&format!("{name}/")))?;
     let options = ListingOptions::new(Arc::new(ParquetFormat::default())).with_file_extension(".parquet");
-    let config = ListingTableConfig::new(url).with_listing_options(options).with_schema(schema);
+    let config = if skip.is_empty() {
+        ListingTableConfig::new(ListingTableUrl::parse(store.table_url(&format!("{name}/")))?)
+    } else {
+        let urls = store
+            .part_names(name)
+            .await?
+            .into_iter()
+            .filter(|p| !skip.contains(p))
+            .map(|p| ListingTableUrl::parse(store.table_url(&format!("{name}/{p}"))))
+            .collect::<Result<Vec<_>, _>>()?;
+        ListingTableConfig::new_with_multi_paths(urls)
+    };
+    let config = config.with_listing_options(options).with_schema(schema);
     ctx.register_table(name, Arc::new(ListingTable::try_new(config)?))?;
     Ok(())
 }
@@ -218,11 +255,29 @@ pub async fn materialize(ctx: &SessionContext, view: &str) -> Result<Vec<arrow::
     Ok(batches)
 }
 
-/// (Re)define the `scored` view from `queries/score.sql` with validated parameters.
-pub async fn define_scored(ctx: &SessionContext, success: SuccessDefinition, cap: Option<u32>) -> Result<()> {
-    let sql = queries::text(queries::SCORE)?
+/// What the `scored` view reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Evidence {
+    /// `episodes.goal_changes` (`queries/score.sql`): one row per episode, tables v3 on.
+    GoalChanges,
+    /// The step rows (`queries/score_from_steps.sql`): runs written before tables v3.
+    Steps,
+}
+
+/// (Re)define the `scored` view with validated parameters.
+pub async fn define_scored(
+    ctx: &SessionContext,
+    success: SuccessDefinition,
+    cap: Option<u32>,
+    evidence: Evidence,
+) -> Result<()> {
+    let query = match evidence {
+        Evidence::GoalChanges => queries::SCORE,
+        Evidence::Steps => queries::SCORE_FROM_STEPS,
+    };
+    let sql = queries::text(query)?
         .replace("{{success}}", success.sql_name())
         .replace("{{cap}}", &cap.map_or("NULL".to_string(), |c| c.to_string()));
-    ctx.sql(&sql).await.context("queries/score.sql")?.collect().await?;
+    ctx.sql(&sql).await.with_context(|| format!("queries/{query}.sql"))?.collect().await?;
     Ok(())
 }

@@ -24,8 +24,8 @@ pub struct Args {
     /// Suites to include.
     #[arg(long, value_delimiter = ',', default_value = "libero_spatial,libero_object,libero_goal,libero_10")]
     suites: Vec<Suite>,
-    /// Trials per task; trial i runs init state i (the canonical protocol runs 50).
-    #[arg(long, default_value_t = TRIALS_PER_TASK)]
+    /// Trials per task; trial i runs init state i (the canonical protocol runs 50); at least 1.
+    #[arg(long, default_value_t = TRIALS_PER_TASK, value_parser = clap::value_parser!(u32).range(1..))]
     trials: u32,
     /// Task ids to include (default: every task of each suite).
     #[arg(long, value_delimiter = ',')]

@@ -1,20 +1,24 @@
-//! `pipeline sql "<query>" --run RUN`: ad-hoc SQL over a stored run.
+//! `pipeline sql "<query>" [--run RUN]`: ad-hoc SQL over a stored run.
 //!
 //! Tables: `specs`, `steps`, `episodes`, `manifest`, and the view `scored` (episode outcomes under
 //! `--success` / `--cap`, from `queries/score.sql`); `published` (published LIBERO numbers).
 //! Functions: `wilson(success [, level])`, `wilson_lo(k, n [, level])`, `wilson_hi(k, n [, level])`,
 //! `mcnemar_exact_p(b, c)`, `newcombe_paired_lo/hi(n11, n10, n01, n00 [, level])`,
 //! `sample_size_two_proportions(p1, p2 [, alpha [, power]])` and DataFusion's built-ins.
+//! Without `--run`, the functions and the `published` table alone (`SELECT wilson_lo(3, 10)`).
 
-use crate::session::RunScoring;
+use crate::session::Scoring;
 use anyhow::Result;
 
 #[derive(clap::Args)]
 pub struct Args {
     /// The SQL query, e.g. "SELECT suite, wilson(success) FROM episodes GROUP BY suite".
     query: String,
+    /// The run (folder or object-store URL); without it, only the functions and `published`.
+    #[arg(long)]
+    run: Option<String>,
     #[command(flatten)]
-    scoring: RunScoring,
+    scoring: Scoring,
     /// Print CSV instead of a table.
     #[arg(long)]
     csv: bool,
@@ -22,7 +26,10 @@ pub struct Args {
 
 pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
-        let (ctx, _) = args.scoring.open().await?;
+        let ctx = match &args.run {
+            Some(run) => crate::session::open(run, args.scoring.success, args.scoring.cap).await?.0,
+            None => crate::session::functions_only()?,
+        };
         let batches = ctx.sql(&args.query).await?.collect().await?;
         if args.csv {
             let mut w = arrow::csv::WriterBuilder::new().with_header(true).build(std::io::stdout());

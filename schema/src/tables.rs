@@ -17,7 +17,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, LazyLock};
 
 /// Version of the step/episode/manifest layout; stored in every manifest and part.
-pub const TABLES_VERSION: u32 = 2;
+pub const TABLES_VERSION: u32 = 3;
 /// Arrow field-metadata key holding a field's documentation.
 pub const DOC_KEY: &str = "doc";
 /// Parquet key-value metadata key holding the run manifest (JSON) in every part.
@@ -154,6 +154,12 @@ pub fn episodes() -> SchemaRef {
                 "policy step at which the goal first held; null if never",
             ),
             field("final_goal", DataType::Boolean, false, "goal value at the last executed step (last-step evidence)"),
+            field(
+                "goal_changes",
+                list(DataType::Int32),
+                true,
+                "policy steps at which the goal's value changed (the value before step 0 taken as false): the goal held at step p iff an odd number are <= p (`goal_held_at`). Re-scoring reads this instead of the steps (queries/score.sql); null in runs written before tables v3",
+            ),
             field("goal_terms", list(DataType::Utf8), false, "BDDL text of each goal term, order of steps.goal_terms"),
             field(
                 "objects_of_interest",

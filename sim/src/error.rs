@@ -7,6 +7,8 @@ pub enum SimError {
     BundleMissing { path: PathBuf, hint: String },
     #[error("task bundle at {path} is unreadable ({detail}); rebuild the bundles with ./setup.sh")]
     BundleCorrupt { path: PathBuf, detail: String },
+    #[error("task bundle file {path} is {detail}; rebuild its suite: {rebuild}")]
+    BundleDamaged { path: PathBuf, detail: String, rebuild: String },
     #[error(
         "task bundle at {path} was built for {what} {found}, but this build needs {expected}; rebuild the bundles with ./setup.sh"
     )]

@@ -5,6 +5,7 @@
 //!
 //! - [`bundle`]: loading a *task bundle* (scene MJCF, init states, fixture poses per seed and
 //!   episode, goal and object metadata), written at set-up by `scripts/reference/build_bundles.py`;
+//! - [`bundle_integrity`]: a bundle's files checked against the hashes of its provenance;
 //! - [`scene`]: compiling the bundle's scene and applying what the reference changes on the live
 //!   model (fixture poses per episode, site colours);
 //! - [`osc`] and [`gripper`]: robosuite's OSC_POSE controller and Panda gripper, quirks included;
@@ -27,6 +28,7 @@
 //! ```
 
 pub mod bundle;
+pub mod bundle_integrity;
 pub mod env;
 mod error;
 pub mod gl;

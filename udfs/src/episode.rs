@@ -7,6 +7,7 @@
 //! here the default is to run to the cap so that last-step scoring stays possible, and
 //! `success` (any policy step within the cap) equals the published first-success latch either way.
 
+use crate::goal_evidence::GoalChanges;
 use crate::policy_cameras::PolicyCameras;
 use crate::scene_view::SceneReader;
 use crate::steps_batch::{EpisodeKey, StepRecord, StepsBatchBuilder};
@@ -43,6 +44,7 @@ impl EpisodeError {
             SimError::InvalidAction { .. } => "invalid_action",
             SimError::BundleMissing { .. }
             | SimError::BundleCorrupt { .. }
+            | SimError::BundleDamaged { .. }
             | SimError::BundleVersion { .. }
             | SimError::UnknownTask { .. }
             | SimError::Compile { .. }
@@ -62,6 +64,8 @@ pub struct EpisodeSummary {
     pub n_policy_steps: u32,
     pub first_success_step: Option<u32>,
     pub final_goal: bool,
+    /// Policy steps at which the goal changed (the compact re-scoring evidence).
+    pub goal_changes: GoalChanges,
     pub goal_terms: Vec<String>,
     /// Object names the failure analysis watches ([`libero_sim::bundle::TaskInfo::objects_of_interest_resolved`]).
     pub objects_of_interest: Vec<String>,
@@ -83,6 +87,7 @@ impl EpisodeSummary {
             n_policy_steps: 0,
             first_success_step: None,
             final_goal: false,
+            goal_changes: GoalChanges::default(),
             goal_terms: vec![],
             objects_of_interest: vec![],
             error: Some(error),
@@ -110,6 +115,7 @@ pub fn run_episode(
         n_policy_steps: 0,
         first_success_step: None,
         final_goal: false,
+        goal_changes: GoalChanges::default(),
         goal_terms: env.goal_terms().to_vec(),
         objects_of_interest: env.bundle().task.objects_of_interest_resolved(),
         error: None,
@@ -212,6 +218,7 @@ pub fn run_episode(
         if let Some(p) = policy_step {
             summary.n_policy_steps = p + 1;
             summary.final_goal = goal.satisfied;
+            summary.goal_changes.record(p, goal.satisfied);
             if goal.satisfied && summary.first_success_step.is_none() {
                 summary.first_success_step = Some(p);
                 if protocol.stop_on_success {
@@ -257,6 +264,13 @@ pub fn episode_batch(
     let item = Arc::new(Field::new("item", DataType::Utf8, false));
     let goal_terms =
         ListArray::try_new(item.clone(), OffsetBuffer::from_lengths([s.goal_terms.len()]), Arc::new(terms), None)?;
+    let changes = Int32Array::from(s.goal_changes.steps().iter().map(|&p| p as i32).collect::<Vec<_>>());
+    let goal_changes = ListArray::try_new(
+        Arc::new(Field::new("item", DataType::Int32, false)),
+        OffsetBuffer::from_lengths([changes.len()]),
+        Arc::new(changes),
+        None,
+    )?;
     let interest = StringArray::from(s.objects_of_interest.clone());
     let objects_of_interest =
         ListArray::try_new(item, OffsetBuffer::from_lengths([s.objects_of_interest.len()]), Arc::new(interest), None)?;
@@ -276,6 +290,7 @@ pub fn episode_batch(
         Arc::new(BooleanArray::from(vec![s.success()])),
         Arc::new(Int32Array::from(vec![s.first_success_step.map(|x| x as i32)])),
         Arc::new(BooleanArray::from(vec![s.final_goal])),
+        Arc::new(goal_changes),
         Arc::new(goal_terms),
         Arc::new(objects_of_interest),
         Arc::new(StringArray::from(vec![s.error.as_ref().map(|e| e.kind)])),

@@ -9,14 +9,19 @@
 //! - [`mcnemar`], [`newcombe`]: paired comparison of two runs, `mcnemar_exact_p(b, c)` and
 //!   `newcombe_paired_lo` / `newcombe_paired_hi(n11, n10, n01, n00 [, level])`;
 //! - [`sample_size`]: `sample_size_two_proportions(p1, p2 [, alpha [, power]])`;
-//! - [`run_store`]: the layout of a run on an object store (parts, manifest, resume);
+//! - [`run_store`]: the layout of a run on an object store (parts, manifest, resume, damaged
+//!   parts); [`compaction`]: merging a run's parts into a few large files, crash-safe;
 //! - [`steps_batch`] / [`episode`]: building the Arrow rows of one episode;
+//! - [`goal_evidence`]: the goal's changes per episode (compact re-scoring evidence) and
+//!   `goal_held_at(goal_changes, step)`;
 //! - [`scene_view`] / [`policy_cameras`]: what a policy may see besides proprio: the privileged
 //!   scene (scripted experts) and the two cameras (learned policies).
 //!
 //! The only crate besides `pipeline` that joins `sim` and `policies`.
 
+pub mod compaction;
 pub mod episode;
+pub mod goal_evidence;
 pub mod mcnemar;
 pub mod newcombe;
 pub mod policy_cameras;
@@ -30,7 +35,7 @@ pub mod wilson;
 use datafusion::prelude::SessionContext;
 
 /// Register the analysis functions (`wilson`, `wilson_lo`, `wilson_hi`, `mcnemar_exact_p`,
-/// `newcombe_paired_lo`, `newcombe_paired_hi`, `sample_size_two_proportions`) on a session.
+/// `newcombe_paired_lo`, `newcombe_paired_hi`, `sample_size_two_proportions`, `goal_held_at`) on a session.
 pub fn register_analysis_functions(ctx: &SessionContext) {
     ctx.register_udaf(wilson::wilson_udaf());
     ctx.register_udf(wilson::wilson_lo_udf());
@@ -39,4 +44,5 @@ pub fn register_analysis_functions(ctx: &SessionContext) {
     ctx.register_udf(newcombe::newcombe_paired_lo_udf());
     ctx.register_udf(newcombe::newcombe_paired_hi_udf());
     ctx.register_udf(sample_size::sample_size_two_proportions_udf());
+    ctx.register_udf(goal_evidence::goal_held_at_udf());
 }

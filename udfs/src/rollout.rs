@@ -31,7 +31,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::hash::{Hash, Hasher};
 use std::panic::AssertUnwindSafe;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock, Weak};
 
 /// Everything a rollout needs besides the spec rows.
 pub struct RolloutContext {
@@ -55,24 +55,45 @@ pub struct RolloutContext {
 
 /// A task's bundle and its compiled model.
 type CompiledTask = Arc<(TaskBundle, MjModel)>;
-/// Filled once, by the first worker that needs the task; the others wait for it.
+/// Filled once, by the first worker that needs the task; the others wait for it. Workers hold it
+/// while they run the task's episodes.
 type TaskSlot = Arc<OnceLock<Result<CompiledTask, SimError>>>;
 
-/// Each task's bundle and compiled model, made once per run and copied for every worker.
+/// Each task's bundle and compiled model, compiled once while workers need it and copied for each.
+///
+/// The cache holds tasks weakly: a task lives while a worker runs its episodes (the worker holds
+/// its slot) and is dropped when the last one moves on. A compiled task with its decoded textures
+/// is ~300 MB, so keeping every task of a run (40 canonical, 90 in libero_90, hundreds in the
+/// perturbation suites) would grow with the run; this way memory is bounded by the tasks in
+/// flight, at most one per worker. Runs are ordered by task and split into units of one task, so
+/// a task is compiled about once per run, and at most once per worker that takes a unit of it.
 #[derive(Default)]
 struct TaskCache {
-    slots: Mutex<HashMap<(Suite, u32), TaskSlot>>,
+    slots: Mutex<HashMap<(Suite, u32), Weak<OnceLock<Result<CompiledTask, SimError>>>>>,
+    compiles: AtomicU64,
 }
 
 impl TaskCache {
-    fn get(&self, bundles: &BundleSet, suite: Suite, task: u32) -> Result<CompiledTask, SimError> {
-        let slot = self.slots.lock().expect("task cache lock").entry((suite, task)).or_default().clone();
+    fn get(&self, bundles: &BundleSet, suite: Suite, task: u32) -> TaskSlot {
+        let slot = {
+            let mut slots = self.slots.lock().expect("task cache lock");
+            slots.retain(|_, w| w.strong_count() > 0);
+            match slots.get(&(suite, task)).and_then(Weak::upgrade) {
+                Some(slot) => slot,
+                None => {
+                    let slot: TaskSlot = Arc::default();
+                    slots.insert((suite, task), Arc::downgrade(&slot));
+                    slot
+                }
+            }
+        };
         slot.get_or_init(|| {
+            self.compiles.fetch_add(1, Ordering::Relaxed);
             let bundle = bundles.load(suite, task)?;
             let model = libero_sim::scene::compile(&bundle)?;
             Ok(Arc::new((bundle, model)))
-        })
-        .clone()
+        });
+        slot
     }
 }
 
@@ -105,6 +126,12 @@ impl RolloutContext {
             finished: AtomicU64::new(0),
             tasks: TaskCache::default(),
         }
+    }
+
+    /// How many times a task's model was compiled in this run (about once per task; at most once
+    /// per worker and task).
+    pub fn task_compiles(&self) -> u64 {
+        self.tasks.compiles.load(Ordering::Relaxed)
     }
 
     fn protocol(&self, suite: Suite) -> EpisodeProtocol {
@@ -261,8 +288,9 @@ impl ScalarUDFImpl for RolloutUdf {
 type RowResult = (String, bool, i32, Option<&'static str>);
 
 thread_local! {
-    /// The worker's env, kept while consecutive episodes are of the same task.
-    static WORKER_ENV: RefCell<Option<((Suite, u32), LiberoEnv)>> = const { RefCell::new(None) };
+    /// The worker's env, kept while consecutive episodes are of the same task, with the task's
+    /// cache slot (which keeps the compiled task alive for the other workers on it).
+    static WORKER_ENV: RefCell<Option<((Suite, u32), TaskSlot, LiberoEnv)>> = const { RefCell::new(None) };
 }
 
 /// Seed of the policy's randomness for an episode: a stable hash of the episode key, so reruns
@@ -281,14 +309,15 @@ impl RolloutUdf {
             WORKER_ENV.with(|cell| {
                 let mut cached = cell.borrow_mut();
                 let task = (suite, key.task_id as u32);
-                if cached.as_ref().is_none_or(|(k, _)| *k != task) {
+                if cached.as_ref().is_none_or(|(k, _, _)| *k != task) {
                     *cached = None;
-                    let env = ctx.tasks.get(&ctx.bundles, suite, task.1).and_then(|bm| {
+                    let slot = ctx.tasks.get(&ctx.bundles, suite, task.1);
+                    let env = slot.get().expect("filled by get").clone().and_then(|bm| {
                         let model = bm.1.clone().ok_or_else(|| SimError::Other("mj_copyModel failed".into()))?;
                         LiberoEnv::with_model(&bm.0, model)
                     });
                     match env {
-                        Ok(env) => *cached = Some((task, env)),
+                        Ok(env) => *cached = Some((task, slot, env)),
                         Err(e) => {
                             let instruction =
                                 ctx.bundles.entry(suite, task.1).map(|t| t.instruction.clone()).unwrap_or_default();
@@ -297,7 +326,7 @@ impl RolloutUdf {
                         }
                     }
                 }
-                let env = &mut cached.as_mut().expect("env just cached").1;
+                let env = &mut cached.as_mut().expect("env just cached").2;
                 let mut policy = match ctx.policy.instantiate() {
                     Ok(p) => p,
                     Err(e) => {

@@ -7,6 +7,11 @@
 //! <run>/steps/<episode>.parquet            one part per episode, one row per env step
 //! <run>/episodes/<episode>.parquet         one part per episode, one row; written last, so its
 //!                                          presence marks the episode finished
+//! <run>/sessions/<start>-<pid>.json        what each `pipeline run` invocation did (episodes,
+//!                                          wall time, peak RSS): `pipeline bench run` reads them
+//! <run>/damaged/{steps,episodes}/<episode>.parquet
+//!                                          parts found damaged (e.g. cut short by a full disk),
+//!                                          set aside by a resume, which re-runs their episodes
 //! ```
 //!
 //! A location is a local path (the default), `file://`, `memory://` (tests), `s3://` (AWS or any
@@ -16,7 +21,7 @@
 
 use arrow::array::RecordBatch;
 use bytes::Bytes;
-use futures::TryStreamExt;
+use futures::{StreamExt, TryStreamExt};
 use libero_schema::RunManifest;
 use libero_schema::tables::MANIFEST_METADATA_KEY;
 use object_store::path::Path as StorePath;
@@ -136,13 +141,91 @@ impl RunStore {
 
     /// File names (not paths) of the parts under `steps/` or `episodes/`.
     pub async fn part_names(&self, table: &str) -> anyhow::Result<HashSet<String>> {
-        let prefix = self.path(table);
+        Ok(self.file_names(table).await?.into_iter().filter(|n| n.ends_with(".parquet")).collect())
+    }
+
+    /// File names (not paths) under a folder of the run (`steps`, `episodes`, `sessions`).
+    pub async fn file_names(&self, folder: &str) -> anyhow::Result<Vec<String>> {
+        let prefix = self.path(folder);
         let metas: Vec<_> = self.store.list(Some(&prefix)).try_collect().await?;
-        Ok(metas
-            .into_iter()
-            .filter_map(|m| m.location.filename().map(str::to_string))
-            .filter(|n| n.ends_with(".parquet"))
-            .collect())
+        Ok(metas.into_iter().filter_map(|m| m.location.filename().map(str::to_string)).collect())
+    }
+
+    /// Names of the files directly in the run's folder (manifest, journals, locks).
+    pub async fn top_level_files(&self) -> anyhow::Result<Vec<String>> {
+        let listing = self.store.list_with_delimiter(Some(&self.root)).await?;
+        Ok(listing.objects.into_iter().filter_map(|m| m.location.filename().map(str::to_string)).collect())
+    }
+
+    /// Rename a file of the run; a source already gone is fine (an earlier attempt moved it).
+    pub async fn rename_if_present(&self, from: &str, to: &str) -> anyhow::Result<()> {
+        match self.store.rename(&self.path(from), &self.path(to)).await {
+            Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
+            Err(e) => Err(anyhow::anyhow!("moving {from} to {to} in {}: {e}", self.url)),
+        }
+    }
+
+    /// Delete a file of the run; one already gone is fine.
+    pub async fn delete_if_present(&self, rel: &str) -> anyhow::Result<()> {
+        match self.store.delete(&self.path(rel)).await {
+            Ok(()) | Err(object_store::Error::NotFound { .. }) => Ok(()),
+            Err(e) => Err(anyhow::anyhow!("deleting {rel} in {}: {e}", self.url)),
+        }
+    }
+
+    /// Parts of `steps/` and `episodes/` that are not whole Parquet files: too short, or without
+    /// the `PAR1` magic at both ends, or with a footer longer than the file. That is what a part
+    /// cut short (full disk, interrupted copy) or overwritten looks like; two small reads per
+    /// part, so every command that opens a run can afford it.
+    pub async fn damaged_parts(&self) -> anyhow::Result<Vec<DamagedPart>> {
+        let mut out = Vec::new();
+        for table in ["steps", "episodes"] {
+            let metas: Vec<_> = self.store.list(Some(&self.path(table))).try_collect().await?;
+            let checks = metas.into_iter().filter(|m| m.location.as_ref().ends_with(".parquet")).map(|m| async move {
+                let name = m.location.filename().unwrap_or_default().to_string();
+                let why = self.parquet_damage(&m.location, m.size).await;
+                why.map(|why| DamagedPart { table, name, why })
+            });
+            let found: Vec<Option<DamagedPart>> = futures::stream::iter(checks).buffer_unordered(32).collect().await;
+            out.extend(found.into_iter().flatten());
+        }
+        out.sort_by(|a, b| (a.table, &a.name).cmp(&(b.table, &b.name)));
+        Ok(out)
+    }
+
+    async fn parquet_damage(&self, location: &StorePath, size: u64) -> Option<String> {
+        if size < 12 {
+            return Some(format!("{size} bytes, shorter than any Parquet file"));
+        }
+        let (head, tail) =
+            match (self.store.get_range(location, 0..4).await, self.store.get_range(location, size - 8..size).await) {
+                (Ok(h), Ok(t)) => (h, t),
+                (Err(e), _) | (_, Err(e)) => return Some(format!("unreadable: {e}")),
+            };
+        if head.as_ref() != b"PAR1" || &tail[4..] != b"PAR1" {
+            return Some(format!("{size} bytes without the Parquet magic at both ends (cut short?)"));
+        }
+        let footer = u32::from_le_bytes(tail[..4].try_into().expect("4 bytes")) as u64;
+        if footer + 12 > size {
+            return Some(format!("footer of {footer} bytes in a file of {size}"));
+        }
+        None
+    }
+
+    /// Move an episode's parts (both tables, whichever exist) to `damaged/`, so a resume runs the
+    /// episode again; nothing is deleted. Returns the parts moved.
+    pub async fn set_aside(&self, part_name: &str) -> anyhow::Result<Vec<String>> {
+        let mut moved = Vec::new();
+        for table in ["steps", "episodes"] {
+            let from = self.path(&format!("{table}/{part_name}"));
+            let to = self.path(&format!("damaged/{table}/{part_name}"));
+            match self.store.rename(&from, &to).await {
+                Ok(()) => moved.push(format!("{table}/{part_name} -> damaged/{table}/{part_name}")),
+                Err(object_store::Error::NotFound { .. }) => {}
+                Err(e) => anyhow::bail!("setting aside {table}/{part_name} in {}: {e}", self.url),
+            }
+        }
+        Ok(moved)
     }
 
     pub async fn read_manifest(&self) -> anyhow::Result<Option<RunManifest>> {
@@ -152,6 +235,20 @@ impl RunStore {
                 anyhow::anyhow!("{}manifest.json is not a run manifest ({e}); use a new output location", self.url)
             })?)),
         }
+    }
+}
+
+/// A part that is not a whole Parquet file ([`RunStore::damaged_parts`]).
+#[derive(Debug, Clone)]
+pub struct DamagedPart {
+    pub table: &'static str,
+    pub name: String,
+    pub why: String,
+}
+
+impl std::fmt::Display for DamagedPart {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{} ({})", self.table, self.name, self.why)
     }
 }
 

@@ -1,0 +1,100 @@
+//! `pipeline bench run --run RUN`: the figures of a stored run at scale, printed.
+//!
+//! - each `pipeline run` invocation that ran episodes: episodes, wall time, episodes/s, workers,
+//!   peak RSS and task-model compiles (from `RUN/sessions/*.json`, which the run writes);
+//! - files per table (`steps/`, `episodes/`);
+//! - wall time of re-scoring as a user does it: `pipeline results` under each success definition,
+//!   with and without a shorter cap, and `pipeline report` without videos, each a fresh process
+//!   (median of `--repeats`).
+
+use crate::run::SessionRecord;
+use anyhow::{Context, Result, bail};
+use libero_udfs::run_store::RunStore;
+use std::process::Command;
+use std::time::Instant;
+
+#[derive(clap::Args)]
+pub struct RunArgs {
+    /// The run to measure (folder or object-store URL).
+    #[arg(long)]
+    run: String,
+    /// Repetitions of each re-scoring command; the median is printed.
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+    /// The shorter cap (policy steps) of the capped re-scorings.
+    #[arg(long, default_value_t = 100)]
+    cap: u32,
+}
+
+pub fn run(args: RunArgs) -> Result<()> {
+    let runtime = tokio::runtime::Runtime::new()?;
+    let store = runtime.block_on(RunStore::connect(&args.run))?;
+    let (sessions, files) = runtime.block_on(async {
+        let mut sessions: Vec<SessionRecord> = Vec::new();
+        for name in store.file_names("sessions").await? {
+            let bytes = store.get(&format!("sessions/{name}")).await?.unwrap_or_default();
+            sessions.push(serde_json::from_slice(&bytes).with_context(|| format!("sessions/{name}"))?);
+        }
+        sessions.sort_by(|a, b| a.started_at.cmp(&b.started_at));
+        let mut files = Vec::new();
+        for table in ["steps", "episodes"] {
+            files.push((table, store.file_names(table).await?.len()));
+        }
+        anyhow::Ok((sessions, files))
+    })?;
+    println!("run {}", store.url());
+    println!("invocations of `pipeline run`:");
+    println!(
+        "  {:<22} {:>8} {:>9} {:>10} {:>7} {:>12} {:>13}",
+        "started", "episodes", "wall s", "episodes/s", "workers", "peak RSS GB", "task compiles"
+    );
+    for s in &sessions {
+        println!(
+            "  {:<22} {:>8} {:>9.1} {:>10.2} {:>7} {:>12.2} {:>8} / {:<4}",
+            s.started_at,
+            s.episodes,
+            s.wall_s,
+            s.episodes as f64 / s.wall_s,
+            s.workers,
+            s.peak_rss_bytes.unwrap_or(0) as f64 / 1e9,
+            s.task_compiles,
+            s.tasks
+        );
+    }
+    if sessions.is_empty() {
+        println!("  (none recorded: the run predates session records)");
+    }
+    for (table, n) in &files {
+        println!("files in {table}/: {n}");
+    }
+    let exe = std::env::current_exe()?;
+    let out = std::env::temp_dir().join(format!("libero-bench-run-{}", std::process::id()));
+    let cap = args.cap.to_string();
+    let out_s = out.to_str().context("temp dir")?.to_string();
+    let commands: Vec<(String, Vec<&str>)> = vec![
+        ("results, any-step".into(), vec!["results", "--run", &args.run, "--out", &out_s]),
+        ("results, last-step".into(), vec!["results", "--run", &args.run, "--success", "last-step", "--out", &out_s]),
+        (format!("results, any-step, cap {cap}"), vec!["results", "--run", &args.run, "--cap", &cap, "--out", &out_s]),
+        (
+            format!("results, last-step, cap {cap}"),
+            vec!["results", "--run", &args.run, "--success", "last-step", "--cap", &cap, "--out", &out_s],
+        ),
+        ("report (no videos)".into(), vec!["report", "--run", &args.run, "--out", &out_s]),
+    ];
+    println!("re-scoring, wall time of a fresh process (median of {}):", args.repeats);
+    for (what, cmd) in &commands {
+        let mut times = Vec::new();
+        for _ in 0..args.repeats.max(1) {
+            let t0 = Instant::now();
+            let o = Command::new(&exe).args(cmd).output()?;
+            if !o.status.success() {
+                bail!("`pipeline {}` failed:\n{}", cmd.join(" "), String::from_utf8_lossy(&o.stderr));
+            }
+            times.push(t0.elapsed().as_secs_f64());
+        }
+        times.sort_by(f64::total_cmp);
+        println!("  {what:<32} {:>7.2} s", times[times.len() / 2]);
+    }
+    let _ = std::fs::remove_dir_all(&out);
+    Ok(())
+}

@@ -133,3 +133,30 @@ fn compacting_a_run_that_is_being_written_is_refused() {
     let out = ok(compact_with_fault(&run, None));
     assert!(out.contains("contents equal"), "{out}");
 }
+
+/// `pipeline run` compacts a run at its end once it has `--compact-at` one-episode parts (500 by
+/// default); fewer stay as they are.
+#[test]
+fn a_run_compacts_itself_at_its_end_past_the_threshold() {
+    let d = test_dir("compaction", "auto");
+    let spec = specs(&d, "0", "3");
+    for (at, expected_files) in [("3", 1), ("4", 3)] {
+        let run = d.join(format!("run-{at}"));
+        let out = pipeline(&[
+            "run",
+            spec.to_str().unwrap(),
+            "--out",
+            run.to_str().unwrap(),
+            "--policy",
+            "lift",
+            "--max-steps",
+            "4",
+            "--compact-at",
+            at,
+        ]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert_eq!(files(&run, "episodes"), expected_files, "--compact-at {at}");
+        let counts = sql_text(&run, "SELECT count(*), count(DISTINCT episode_key) FROM episodes");
+        assert_eq!(counts.lines().nth(1), Some("3,3"));
+    }
+}

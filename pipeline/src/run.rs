@@ -49,6 +49,11 @@ pub struct Args {
     /// Parallel episodes (default: one per core).
     #[arg(long)]
     jobs: Option<usize>,
+    /// At the end of a run, merge its one-episode parts into a few large files (`pipeline compact`)
+    /// once there are at least this many (0: never). Re-scoring 2000 episodes takes 2.1 s over
+    /// 4000 parts and 0.2 s compacted; compacting them takes ~9 s.
+    #[arg(long, default_value_t = 500)]
+    compact_at: usize,
 }
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
@@ -140,6 +145,15 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             let ran = run_pending(&args, &set, &specs, &manifest, &store, &max_steps, &tasks, pending).await;
             store.delete_if_present("writer.json").await?;
             ran?;
+        }
+        let parts = store.part_names("episodes").await?;
+        let small = parts.iter().filter(|p| !p.starts_with("compact-")).count();
+        if args.compact_at > 0 && small >= args.compact_at {
+            let r = compaction::compact(&store).await?;
+            eprintln!(
+                "compacted {} episodes: steps/ {} -> {} files, episodes/ {} -> {} files (contents checked equal)",
+                r.episodes, r.files_before[0], r.files_after[0], r.files_before[1], r.files_after[1]
+            );
         }
         print_results(&args.out, &args.policy).await
     })

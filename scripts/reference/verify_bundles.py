@@ -1,6 +1,6 @@
 """Check every recorded fixture pose of built bundles against the published loop, in full.
 
-usage: verify_bundles.py BUNDLES [--suites libero_spatial,...] [--jobs J]
+usage: verify_bundles.py BUNDLES [--suites libero_spatial,...] [--tasks libero_10/09,...] [--jobs J]
 
 The set-up (build_bundles.py) checks each task and seed on a spread of episodes. This command runs
 the published loop itself for every recorded episode: per task and seed, a freshly constructed
@@ -40,13 +40,15 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("bundles")
     ap.add_argument("--suites", help="comma-separated; default: every suite in index.json")
+    ap.add_argument("--tasks", help="comma-separated bundle paths (suite/NN); default: every task of the suites")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     args = ap.parse_args()
+    only = set(args.tasks.split(",")) if args.tasks else None
     index = json.load(open(os.path.join(args.bundles, "index.json")))
     suites = set(args.suites.split(",")) if args.suites else {t["suite"] for t in index["tasks"]}
     jobs = []
     for t in index["tasks"]:
-        if t["suite"] in suites:
+        if t["suite"] in suites and (only is None or t["path"] in only):
             seeds = json.load(open(os.path.join(args.bundles, t["path"], "task.json")))["fixture_seeds"]
             jobs += [(args.bundles, t["path"], s) for s in seeds]
     t0 = time.time()

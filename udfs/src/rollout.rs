@@ -70,6 +70,7 @@ type TaskSlot = Arc<OnceLock<Result<CompiledTask, SimError>>>;
 #[derive(Default)]
 struct TaskCache {
     slots: Mutex<HashMap<(Suite, u32), Weak<OnceLock<Result<CompiledTask, SimError>>>>>,
+    compiling: Mutex<()>,
     compiles: AtomicU64,
 }
 
@@ -88,12 +89,44 @@ impl TaskCache {
             }
         };
         slot.get_or_init(|| {
+            // One compile at a time: MuJoCo's compiler peaks at ~4x the model it makes (a 330 MB
+            // LIBERO model with its decoded textures passes 1.3 GB), so two concurrent compiles
+            // alone would pass the 3 GB a run of any size stays within. A compile takes ~2 s, a
+            // task's episodes minutes: the wait costs little.
+            let _one_at_a_time = self.compiling.lock().unwrap_or_else(|e| e.into_inner());
             self.compiles.fetch_add(1, Ordering::Relaxed);
-            let bundle = bundles.load(suite, task)?;
-            let model = libero_sim::scene::compile(&bundle)?;
-            Ok(Arc::new((bundle, model)))
+            let compiled = bundles.load(suite, task).and_then(|bundle| {
+                let model = libero_sim::scene::compile(&bundle)?;
+                Ok(Arc::new((bundle, model)))
+            });
+            clear_mujoco_asset_cache();
+            release_freed_memory();
+            compiled
         });
         slot
+    }
+}
+
+/// MuJoCo 3.x keeps decoded assets of past compiles in a global cache of up to 500 MB, so a
+/// later compile of the same textures is faster. A run compiles each task about once, and a
+/// LIBERO scene's textures alone are ~200 MB: the cache would hold 500 MB of a run's memory for
+/// little, so it is emptied after each compile. (A capacity of 0, which should turn it off,
+/// crashes MuJoCo 3.3.7's compiler.) Compiled models are the same with or without it.
+fn clear_mujoco_asset_cache() {
+    // SAFETY: mj_getCache returns MuJoCo's global cache; clearing it is thread-safe, and it is
+    // done under the compile lock, so no compile is reading it.
+    unsafe {
+        mujoco_rs::mujoco_c::mj_clearCache(mujoco_rs::mujoco_c::mj_getCache());
+    }
+}
+
+/// Give the memory malloc holds free back to the system. The compiler's many transient
+/// allocations come from the heap, which glibc does not shrink on its own: without this, a run's
+/// resident set keeps every compile's peak.
+pub fn release_freed_memory() {
+    // SAFETY: malloc_trim only releases free memory of the allocator; it is thread-safe.
+    unsafe {
+        libc::malloc_trim(0);
     }
 }
 
@@ -310,7 +343,9 @@ impl RolloutUdf {
                 let mut cached = cell.borrow_mut();
                 let task = (suite, key.task_id as u32);
                 if cached.as_ref().is_none_or(|(k, _, _)| *k != task) {
-                    *cached = None;
+                    if cached.take().is_some() {
+                        release_freed_memory();
+                    }
                     let slot = ctx.tasks.get(&ctx.bundles, suite, task.1);
                     let env = slot.get().expect("filled by get").clone().and_then(|bm| {
                         let model = bm.1.clone().ok_or_else(|| SimError::Other("mj_copyModel failed".into()))?;

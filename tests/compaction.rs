@@ -1,5 +1,5 @@
 //! `pipeline compact` on real runs: the same rows before and after (every column of both tables),
-//! a kill at each stage of a compaction loses and duplicates nothing, a compacted run resumes and
+//! a kill at each stage of a compaction (and a SIGKILL at any moment) loses and duplicates nothing, a compacted run resumes and
 //! re-scores, pyarrow/polars/duckdb read it as before, and a run being written is refused.
 
 use libero_e2e::{ok, pipeline, pipeline_bin, repo_root, test_dir};
@@ -159,4 +159,44 @@ fn a_run_compacts_itself_at_its_end_past_the_threshold() {
         let counts = sql_text(&run, "SELECT count(*), count(DISTINCT episode_key) FROM episodes");
         assert_eq!(counts.lines().nth(1), Some("3,3"));
     }
+}
+
+/// A real SIGKILL at increasing moments of a compaction (not only at the stage hooks): whatever
+/// moment it lands, the next command sees every row once, and a later compaction finishes.
+#[test]
+fn sigkill_at_any_moment_of_a_compaction_loses_and_duplicates_nothing() {
+    let d = test_dir("compaction", "sigkill");
+    let spec = specs(&d, "0,1,2", "4");
+    let run = d.join("run");
+    ok(pipeline(&[
+        "run",
+        spec.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--policy",
+        "lift",
+        "--max-steps",
+        "6",
+    ]));
+    let before = contents(&run);
+    let mut killed = 0;
+    for delay_ms in [5u64, 20, 40, 80, 160, 320] {
+        let mut child = Command::new(pipeline_bin())
+            .args(["compact", run.to_str().unwrap()])
+            .current_dir(repo_root())
+            .stdout(std::process::Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(delay_ms));
+        if child.try_wait().unwrap().is_none() {
+            child.kill().unwrap(); // SIGKILL
+            killed += 1;
+        }
+        child.wait().unwrap();
+        assert_eq!(contents(&run), before, "after a SIGKILL {delay_ms} ms into a compaction");
+    }
+    assert!(killed > 0, "every compaction finished before its kill: nothing was tested");
+    ok(compact_with_fault(&run, None));
+    assert_eq!(contents(&run), before);
+    assert_eq!(files(&run, "episodes"), 1);
 }

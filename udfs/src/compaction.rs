@@ -103,7 +103,7 @@ pub async fn recover(store: &RunStore) -> Result<()> {
     for name in store.top_level_files().await? {
         if name.starts_with("compaction-") && name.ends_with(".json") {
             let bytes = store.get(&name).await?.unwrap_or_default();
-            let journal: Journal = serde_json::from_slice(&bytes).with_context(|| format!("{name}"))?;
+            let journal: Journal = serde_json::from_slice(&bytes).with_context(|| name.clone())?;
             apply(store, &name, &journal).await?;
         }
     }

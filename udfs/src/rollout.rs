@@ -58,6 +58,10 @@ type CompiledTask = Arc<(TaskBundle, MjModel)>;
 /// Filled once, by the first worker that needs the task; the others wait for it. Workers hold it
 /// while they run the task's episodes.
 type TaskSlot = Arc<OnceLock<Result<CompiledTask, SimError>>>;
+/// A task's slot as the cache holds it: alive only while some worker holds the slot.
+type WeakTaskSlot = Weak<OnceLock<Result<CompiledTask, SimError>>>;
+/// A worker's env and the task it is for.
+type WorkerEnv = ((Suite, u32), TaskSlot, LiberoEnv);
 
 /// Each task's bundle and compiled model, compiled once while workers need it and copied for each.
 ///
@@ -69,7 +73,7 @@ type TaskSlot = Arc<OnceLock<Result<CompiledTask, SimError>>>;
 /// a task is compiled about once per run, and at most once per worker that takes a unit of it.
 #[derive(Default)]
 struct TaskCache {
-    slots: Mutex<HashMap<(Suite, u32), Weak<OnceLock<Result<CompiledTask, SimError>>>>>,
+    slots: Mutex<HashMap<(Suite, u32), WeakTaskSlot>>,
     compiling: Mutex<()>,
     compiles: AtomicU64,
 }
@@ -323,7 +327,7 @@ type RowResult = (String, bool, i32, Option<&'static str>);
 thread_local! {
     /// The worker's env, kept while consecutive episodes are of the same task, with the task's
     /// cache slot (which keeps the compiled task alive for the other workers on it).
-    static WORKER_ENV: RefCell<Option<((Suite, u32), TaskSlot, LiberoEnv)>> = const { RefCell::new(None) };
+    static WORKER_ENV: RefCell<Option<WorkerEnv>> = const { RefCell::new(None) };
 }
 
 /// Seed of the policy's randomness for an episode: a stable hash of the episode key, so reruns

@@ -147,7 +147,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             ran?;
         }
         let parts = store.part_names("episodes").await?;
-        let small = parts.iter().filter(|p| !p.starts_with("compact-")).count();
+        let small = parts.iter().filter(|p| !p.starts_with(compaction::COMPACT_PREFIX)).count();
         if args.compact_at > 0 && small >= args.compact_at {
             let r = compaction::compact(&store).await?;
             eprintln!(
@@ -171,55 +171,53 @@ async fn run_pending(
     tasks: &BTreeSet<(Suite, u32)>,
     pending: Vec<u32>,
 ) -> Result<()> {
-    {
-        let progress = ProgressBar::new(pending.len() as u64).with_style(
-            ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} episodes · {msg} · ETA {eta}")?
-                .progress_chars("=> "),
-        );
-        progress.set_message("success 0/0");
-        let ctx = Arc::new(RolloutContext::new(
-            set.clone(),
-            args.policy.clone(),
-            max_steps.clone(),
-            args.wait_steps,
-            args.stop_on_success,
-            manifest.run_config.clone(),
-            serde_json::to_string(&manifest)?,
-            store.clone(),
-            tokio::runtime::Handle::current(),
-            progress.clone(),
-        ));
-        let n_pending = pending.len();
-        let pending_batch = arrow::compute::take_record_batch(&specs.batch, &UInt32Array::from(pending))?;
-        let started = (now_rfc3339(), std::time::Instant::now());
-        run_rollouts(ctx.clone(), pending_batch, &specs.extras).await?;
-        progress.finish();
-        let record = SessionRecord {
-            started_at: started.0,
-            wall_s: started.1.elapsed().as_secs_f64(),
-            episodes: n_pending,
-            tasks: tasks.len(),
-            workers: rayon::current_num_threads(),
-            task_compiles: ctx.task_compiles(),
-            peak_rss_bytes: peak_rss_bytes(),
-            host: std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default().trim().to_string(),
-        };
-        eprintln!(
-            "{} episodes in {:.1} s ({:.2} episodes/s on {} workers); peak RSS {:.2} GB; task models compiled: {} for {} tasks",
-            record.episodes,
-            record.wall_s,
-            record.episodes as f64 / record.wall_s,
-            record.workers,
-            record.peak_rss_bytes.unwrap_or(0) as f64 / 1e9,
-            record.task_compiles,
-            record.tasks
-        );
-        let name = format!("sessions/{}-{}.json", record.started_at.replace(':', ""), std::process::id());
-        store.put(&name, serde_json::to_vec_pretty(&record)?.into()).await?;
-        // whether the batched policy's forwards were full (?batch=N and --jobs)
-        for (name, stats) in libero_policies::batching::shared_batcher_stats() {
-            eprintln!("batched policy {name}: {}", stats.summary());
-        }
+    let progress = ProgressBar::new(pending.len() as u64).with_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} episodes · {msg} · ETA {eta}")?
+            .progress_chars("=> "),
+    );
+    progress.set_message("success 0/0");
+    let ctx = Arc::new(RolloutContext::new(
+        set.clone(),
+        args.policy.clone(),
+        max_steps.clone(),
+        args.wait_steps,
+        args.stop_on_success,
+        manifest.run_config.clone(),
+        serde_json::to_string(&manifest)?,
+        store.clone(),
+        tokio::runtime::Handle::current(),
+        progress.clone(),
+    ));
+    let n_pending = pending.len();
+    let pending_batch = arrow::compute::take_record_batch(&specs.batch, &UInt32Array::from(pending))?;
+    let started = (now_rfc3339(), std::time::Instant::now());
+    run_rollouts(ctx.clone(), pending_batch, &specs.extras).await?;
+    progress.finish();
+    let record = SessionRecord {
+        started_at: started.0,
+        wall_s: started.1.elapsed().as_secs_f64(),
+        episodes: n_pending,
+        tasks: tasks.len(),
+        workers: rayon::current_num_threads(),
+        task_compiles: ctx.task_compiles(),
+        peak_rss_bytes: peak_rss_bytes(),
+        host: compaction::hostname(),
+    };
+    eprintln!(
+        "{} episodes in {:.1} s ({:.2} episodes/s on {} workers); peak RSS {:.2} GB; task models compiled: {} for {} tasks",
+        record.episodes,
+        record.wall_s,
+        record.episodes as f64 / record.wall_s,
+        record.workers,
+        record.peak_rss_bytes.unwrap_or(0) as f64 / 1e9,
+        record.task_compiles,
+        record.tasks
+    );
+    let name = format!("sessions/{}-{}.json", record.started_at.replace(':', ""), std::process::id());
+    store.put(&name, serde_json::to_vec_pretty(&record)?.into()).await?;
+    // whether the batched policy's forwards were full (?batch=N and --jobs)
+    for (name, stats) in libero_policies::batching::shared_batcher_stats() {
+        eprintln!("batched policy {name}: {}", stats.summary());
     }
     Ok(())
 }

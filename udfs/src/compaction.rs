@@ -37,7 +37,8 @@ use std::collections::BTreeSet;
 /// Episodes per compacted file: ~300 step rows each, so a steps file holds ~150k rows (~60 MB).
 pub const EPISODES_PER_FILE: usize = 500;
 const TABLES: [&str; 2] = ["steps", "episodes"];
-const COMPACT_PREFIX: &str = "compact-";
+/// File-name prefix of compacted files in `steps/` and `episodes/`.
+pub const COMPACT_PREFIX: &str = "compact-";
 
 /// The commit record of one compaction.
 #[derive(Debug, Serialize, Deserialize)]
@@ -85,7 +86,8 @@ impl WriterLock {
     }
 }
 
-fn hostname() -> String {
+/// This machine's host name (what locks and run session records name).
+pub fn hostname() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default().trim().to_string()
 }
 
@@ -143,7 +145,7 @@ pub async fn compact(store: &RunStore) -> Result<CompactionReport> {
     if let Some(c) = live_lock(store, "compaction.lock").await? {
         bail!("{} is being compacted by pid {} on {}; wait for it", store.url(), c.pid, c.host);
     }
-    let lock = WriterLock::this_process(chrono_now());
+    let lock = WriterLock::this_process(unix_seconds());
     recover(store).await?;
     store.put("compaction.lock", serde_json::to_vec(&lock)?.into()).await?;
     let result = compact_locked(store).await;
@@ -169,7 +171,7 @@ async fn compact_locked(store: &RunStore) -> Result<CompactionReport> {
     if episodes.is_empty() {
         return Ok(CompactionReport { episodes: 0, files_before, files_after: files_before, digests: digests_before });
     }
-    let generation = format!("{}-{}", chrono_now().replace([':', '-'], ""), std::process::id());
+    let generation = format!("{}-{}", unix_seconds().replace([':', '-'], ""), std::process::id());
     let mut files = Vec::new();
     for (k, chunk) in episodes.chunks(EPISODES_PER_FILE).enumerate() {
         for table in TABLES {
@@ -291,7 +293,8 @@ fn fault_point(stage: &str) {
     }
 }
 
-fn chrono_now() -> String {
+/// Seconds since the Unix epoch, as text: compaction generations and lock times.
+fn unix_seconds() -> String {
     let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0);
     format!("{secs}")
 }

@@ -731,6 +731,37 @@ print("standard LIBERO (authors) next to LIBERO-PRO, per model and suite:")
 display(suite_sort(drop).sort("model", maintain_order=True))
 
 # %% [markdown]
+# **This run under perturbation.** When the run holds LIBERO-PRO suites beside their base suites
+# (`pipeline specs --suites libero_spatial,...,libero_10,libero_pro`; bundles:
+# `./setup.sh --suites libero_pro`), the table below answers the brief per suite: the base rate,
+# each perturbation's, the mean drop and the worst perturbation, from the episode rows' `success`
+# (any-step) grouped by `base_suite` × `perturbation` (columns the pipeline derives from the suite
+# name). `pipeline robustness --run RUN` gives the same cells with Wilson intervals and an
+# interval for each drop (paired for `lan`), and the report shows both.
+
+# %%
+if "perturbation" in episodes.columns and episodes.filter(pl.col("perturbation").fill_null("none") != "none").height:
+    cells = (
+        episodes.with_columns(pl.col("base_suite").fill_null(pl.col("suite")), pl.col("perturbation").fill_null("none"))
+        .group_by("base_suite", "perturbation")
+        .agg(rate=pl.col("success").cast(pl.Float64).mean(), n=pl.len())
+    )
+    wide = cells.pivot(on="perturbation", index="base_suite", values="rate").rename({"base_suite": "suite"})
+    perturbed = [c for c in ("swap", "object", "lan", "task", "env") if c in wide.columns]
+    wide = wide.with_columns(
+        mean_drop=pl.col("none") - pl.mean_horizontal(perturbed),
+        worst=pl.concat_list([pl.col("none") - pl.col(c) for c in perturbed]).list.arg_max().map_elements(
+            lambda i: perturbed[i], return_dtype=pl.Utf8
+        ),
+    ).rename({"none": "base"}).select("suite", "base", *perturbed, "mean_drop", "worst")
+    display(suite_sort(wide))
+    falls = wide.sort("mean_drop", descending=True, nulls_last=True)["suite"][0]
+    pro_cells = cells.filter(pl.col("perturbation") != "none")
+    print(f"falls most: {falls}; LIBERO-PRO total (plain mean of this run's {pro_cells.height} cells): {100 * pro_cells['rate'].mean():.1f}%")
+else:
+    print("this run holds no LIBERO-PRO suite: add them to the spec table to see whether its numbers survive perturbation")
+
+# %% [markdown]
 # **Reflection prompts** (write at least 100 words below, naming one suite):
 #
 # 1. Which of this run's per-suite numbers do you believe most? Least? (Interval width, the

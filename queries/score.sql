@@ -17,7 +17,10 @@
 -- Wait steps never count, as in the published loop.
 CREATE OR REPLACE VIEW scored AS
 WITH capped AS (
-    SELECT e.*,
+    -- runs before tables v4 have no base_suite/perturbation; they could only run LIBERO suites
+    SELECT e.* EXCLUDE (base_suite, perturbation),
+           COALESCE(e.base_suite, e.suite) AS base_suite,
+           COALESCE(e.perturbation, 'none') AS perturbation,
            CAST(LEAST(e.max_steps, COALESCE({{cap}}, e.max_steps)) AS INT) AS episode_length_cap
     FROM episodes e
 )

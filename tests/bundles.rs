@@ -21,7 +21,11 @@ fn every_canonical_task_has_a_bundle_that_compiles_to_the_reference_model() {
             let (nq, nv) = (model.ffi().nq as usize, model.ffi().nv as usize);
             assert_eq!(bundle.init_states.cols, 1 + nq + nv, "{suite} task {task_id}");
             assert_eq!(bundle.init_states.rows, 50, "{suite} task {task_id}");
-            assert!(!bundle.task.instruction.is_empty() && !bundle.task.goal.is_empty());
+            assert!(!bundle.task.instructions.bddl.is_empty() && !bundle.task.goal.is_empty());
+            assert_eq!(
+                (bundle.task.base_suite.as_str(), bundle.task.perturbation.as_deref()),
+                (suite.name().as_str(), None)
+            );
             assert_eq!(bundle.fixture_seeds(), vec![0, 7], "fixture poses for OpenVLA's and openpi's seeds");
             assert!(bundle.task.cameras.iter().any(|c| c == "agentview"));
             n += 1;
@@ -32,7 +36,7 @@ fn every_canonical_task_has_a_bundle_that_compiles_to_the_reference_model() {
 
 #[test]
 fn fixture_poses_change_between_episodes_and_seeds_like_the_reference() {
-    let bundle = bundles().load(Suite::LiberoGoal, 0).unwrap();
+    let bundle = bundles().load(Suite::LIBERO_GOAL, 0).unwrap();
     let body = &bundle.task.fixture_bodies[0];
     let p = |seed, ep| bundle.fixture_poses(seed, ep).unwrap()[body].pos;
     assert_ne!(p(0, 0), p(0, 1), "each reset re-samples fixture poses");
@@ -73,12 +77,30 @@ fn recorded_fixture_poses_were_checked_against_the_published_loop_on_every_task_
     assert!(spots.len() >= 8, "the middle spot episodes should spread over 2..48: {spots:?}");
 }
 
+/// A LIBERO task has two instruction texts; the published loops (OpenVLA's and openpi's
+/// `task_description = task.language`) give the file-name one, which can say something else than
+/// the BDDL tag.
 #[test]
-fn instructions_come_from_the_bddl_language_tag() {
-    // The file name says "in the bowl"; the BDDL (and the published evaluations) say "on the bowl".
-    let b = bundles().load(Suite::LiberoGoal, 6).unwrap();
-    assert_eq!(b.task.name, "put_the_cream_cheese_in_the_bowl");
-    assert_eq!(b.task.instruction, "Put the cream cheese on the bowl");
+fn base_tasks_record_both_instructions_and_give_the_published_loops_one_by_default() {
+    use libero_schema::InstructionSource;
+    let b = bundles().load(Suite::LIBERO_GOAL, 0).unwrap();
+    assert_eq!(b.task.name, "open_the_middle_drawer_of_the_cabinet");
+    assert_eq!(b.task.instructions.filename, "open the middle drawer of the cabinet");
+    assert_eq!(
+        b.task.instructions.bddl, "open the middle layer of the drawer",
+        "lowercased, as env.language_instruction"
+    );
+    assert_eq!(b.task.instruction(InstructionSource::Published), ("open the middle drawer of the cabinet", "filename"));
+    assert_eq!(b.task.instruction(InstructionSource::Bddl), ("open the middle layer of the drawer", "bddl"));
+    let mut differ = 0;
+    for suite in Suite::CANONICAL {
+        for task_id in 0..10 {
+            let t = bundles().load(suite, task_id).unwrap().task;
+            assert_eq!(t.instruction(InstructionSource::Published).0, t.instructions.published, "{suite} {task_id}");
+            differ += usize::from(t.instructions.bddl != t.instructions.filename);
+        }
+    }
+    assert!(differ >= 20, "only {differ} of 40 canonical tasks have two different texts");
 }
 
 fn copy_bundle(suite: Suite, task: u32) -> (tempdir::Dir, std::path::PathBuf) {
@@ -122,18 +144,18 @@ fn missing_corrupt_or_foreign_bundles_say_how_to_rebuild() {
         "{missing}"
     );
 
-    let (_d, dir) = copy_bundle(Suite::LiberoSpatial, 0);
+    let (_d, dir) = copy_bundle(Suite::LIBERO_SPATIAL, 0);
     std::fs::write(dir.join("task.json"), "{ not json").unwrap();
     let corrupt = TaskBundle::load(&dir).unwrap_err();
     assert!(corrupt.to_string().contains("task.json") && corrupt.to_string().contains("./setup.sh"), "{corrupt}");
 
-    let (_d2, dir2) = copy_bundle(Suite::LiberoSpatial, 0);
+    let (_d2, dir2) = copy_bundle(Suite::LIBERO_SPATIAL, 0);
     let prov = std::fs::read_to_string(dir2.join("provenance.json")).unwrap().replace("\"3.3.7\"", "\"3.2.3\"");
     std::fs::write(dir2.join("provenance.json"), prov).unwrap();
     let foreign = TaskBundle::load(&dir2).unwrap_err();
     assert!(matches!(foreign, SimError::BundleVersion { .. }) && foreign.to_string().contains("3.2.3"), "{foreign}");
 
-    let (_d3, dir3) = copy_bundle(Suite::LiberoSpatial, 0);
+    let (_d3, dir3) = copy_bundle(Suite::LIBERO_SPATIAL, 0);
     std::fs::write(dir3.join("init_states.npy"), b"\x93NUMPY truncated").unwrap();
     let npy = TaskBundle::load(&dir3).unwrap_err();
     assert!(npy.to_string().contains("init_states.npy"), "{npy}");
@@ -142,9 +164,9 @@ fn missing_corrupt_or_foreign_bundles_say_how_to_rebuild() {
 #[test]
 fn unknown_tasks_and_init_states_list_what_exists() {
     let set = bundles();
-    let err = set.load(Suite::LiberoSpatial, 10).unwrap_err().to_string();
+    let err = set.load(Suite::LIBERO_SPATIAL, 10).unwrap_err().to_string();
     assert!(err.contains("0, 1, 2") && err.contains("task 10"), "{err}");
-    let bundle = set.load(Suite::LiberoSpatial, 0).unwrap();
+    let bundle = set.load(Suite::LIBERO_SPATIAL, 0).unwrap();
     let mut env = LiberoEnv::new(&bundle).unwrap();
     let err = env.reset(50, 0).unwrap_err().to_string();
     assert!(err.contains("50 init states"), "{err}");

@@ -39,7 +39,10 @@ fn tasks_lists_the_forty_canonical_tasks_with_their_instructions() {
     for suite in ["libero_spatial", "libero_object", "libero_goal", "libero_10"] {
         assert_eq!(rows.iter().filter(|r| r["suite"] == suite).count(), 10, "{suite}");
     }
-    assert!(rows.iter().any(|r| r["instruction"] == "Put the cream cheese on the bowl"));
+    // the published loops' text (task.language), with the BDDL tag beside it
+    let t = rows.iter().find(|r| r["suite"] == "libero_goal" && r["task_id"] == 6).unwrap();
+    assert_eq!(t["instruction"], "put the cream cheese in the bowl");
+    assert_eq!(t["instruction_bddl"], "put the cream cheese on the bowl");
 }
 
 #[test]

@@ -38,7 +38,12 @@ fn tmp(name: &str) -> PathBuf {
 fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome)]) {
     std::fs::create_dir_all(dir.join("steps")).unwrap();
     std::fs::create_dir_all(dir.join("episodes")).unwrap();
-    let protocol = EpisodeProtocol { max_steps: MAX_STEPS, num_steps_wait: WAIT, stop_on_success: false };
+    let protocol = EpisodeProtocol {
+        max_steps: MAX_STEPS,
+        num_steps_wait: WAIT,
+        stop_on_success: false,
+        instruction_source: Default::default(),
+    };
     for &(suite, task, init, seed, outcome) in episodes {
         let key = EpisodeKey::new(suite, task, init, seed);
         let mut b = StepsBatchBuilder::new(key.clone(), vec!["bowl".into()]);
@@ -67,6 +72,9 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
         }
         let summary = EpisodeSummary {
             instruction: format!("task {task} of {suite}"),
+            instruction_source: "bddl",
+            // the same start for the same (task, init, seed) in any suite, but in `_swap`
+            start_sha256: Some(format!("{task}/{init}/{seed}{}", if suite.ends_with("_swap") { "/moved" } else { "" })),
             n_policy_steps: MAX_STEPS,
             first_success_step: first,
             final_goal: goal(outcome, MAX_STEPS - 1),
@@ -264,4 +272,46 @@ fn the_published_table_is_in_every_sql_session() {
     let stdout = ok(pipeline(&["sql", q, "--run", a.to_str().unwrap(), "--csv"]));
     assert_eq!(stdout.lines().count(), 5, "{stdout}");
     assert!(stdout.contains("libero_10,0.924"), "{stdout}");
+}
+
+/// `queries/robustness.sql` pairs a perturbed episode with the base's when both start alike
+/// (`start_sha256`), and only then: libero_goal_lan here starts as libero_goal does (as a
+/// language-only variant would), libero_goal_swap does not. Paired: the drop is (n10 − n01)/n
+/// with Newcombe's paired interval and McNemar's p; unpaired: base − perturbed with the
+/// independent-samples interval around it.
+#[test]
+fn robustness_pairs_episodes_that_start_alike() {
+    use Outcome::*;
+    let d = tmp("robustness");
+    let mut eps = vec![];
+    // base vs lan over inits 0..10: 4 both, 3 base only, 1 lan only, 2 neither
+    for init in 0..10 {
+        let (base, lan) = match init {
+            0..4 => (Success, Success),
+            4..7 => (Success, Fail),
+            7 => (Fail, Success),
+            _ => (Fail, Fail),
+        };
+        eps.push(("libero_goal", 0, init, 7, base));
+        eps.push(("libero_goal_lan", 0, init, 7, lan));
+        eps.push(("libero_goal_swap", 0, init, 7, if init < 2 { Success } else { Fail }));
+    }
+    write_run(&d, "constructed", &eps);
+    let rows = libero_e2e::sql_rows(
+        &d,
+        "SELECT perturbation, paired, n_pairs, drop_from_base, drop_ci_lo, drop_ci_hi, mcnemar_p, \
+         newcombe_paired_lo(4, 3, 1, 2), newcombe_paired_hi(4, 3, 1, 2), base_rate, success_rate \
+         FROM robustness ORDER BY perturbation",
+        &[],
+    );
+    let f = |r: &Vec<String>, i: usize| r[i].parse::<f64>().unwrap();
+    let lan = rows.iter().find(|r| r[0] == "lan").unwrap();
+    assert_eq!((lan[1].as_str(), lan[2].as_str()), ("true", "10"), "{lan:?}");
+    assert!((f(lan, 3) - 0.2).abs() < 1e-12, "{lan:?}");
+    assert_eq!((f(lan, 4), f(lan, 5)), (f(lan, 7), f(lan, 8)), "Newcombe's paired interval: {lan:?}");
+    assert!(f(lan, 6) > 0.0 && f(lan, 6) <= 1.0, "McNemar's p: {lan:?}");
+    let swap = rows.iter().find(|r| r[0] == "swap").unwrap();
+    assert_eq!((swap[1].as_str(), swap[2].as_str()), ("false", ""), "{swap:?}");
+    assert!((f(swap, 3) - (0.7 - 0.2)).abs() < 1e-12 && (f(swap, 9) - 0.7).abs() < 1e-12, "{swap:?}");
+    assert!(f(swap, 4) < f(swap, 3) && f(swap, 3) < f(swap, 5), "{swap:?}");
 }

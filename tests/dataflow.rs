@@ -354,7 +354,12 @@ fn synthetic_run() -> PathBuf {
     let d = tmp("synthetic");
     std::fs::create_dir_all(d.join("steps")).unwrap();
     std::fs::create_dir_all(d.join("episodes")).unwrap();
-    let protocol = EpisodeProtocol { max_steps: 100, num_steps_wait: 10, stop_on_success: false };
+    let protocol = EpisodeProtocol {
+        max_steps: 100,
+        num_steps_wait: 10,
+        stop_on_success: false,
+        instruction_source: Default::default(),
+    };
     let goal_at: [fn(u32) -> bool; 4] = [|p| (5..10).contains(&p), |p| p == 99, |_| false, |p| p >= 50];
     for (i, goal) in goal_at.iter().enumerate() {
         let key = EpisodeKey::new("libero_goal", 0, i as i32, 7);
@@ -384,6 +389,8 @@ fn synthetic_run() -> PathBuf {
         }
         let summary = EpisodeSummary {
             instruction: "put the bowl somewhere".into(),
+            instruction_source: "bddl",
+            start_sha256: None,
             n_policy_steps: 100,
             first_success_step: first,
             final_goal: goal(99),
@@ -417,6 +424,7 @@ fn synthetic_run() -> PathBuf {
         policy_identity: serde_json::json!({}),
         num_steps_wait: 10,
         max_steps: Default::default(),
+        instruction_source: Default::default(),
         stop_on_success: false,
         substeps_per_step: 25,
         control_freq_hz: 20,

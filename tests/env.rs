@@ -7,7 +7,7 @@ use libero_sim::SimError;
 use libero_sim::env::LiberoEnv;
 
 fn env() -> LiberoEnv {
-    LiberoEnv::new(&bundles().load(Suite::LiberoObject, 0).unwrap()).unwrap()
+    LiberoEnv::new(&bundles().load(Suite::LIBERO_OBJECT, 0).unwrap()).unwrap()
 }
 
 #[test]

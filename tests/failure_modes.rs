@@ -122,7 +122,12 @@ fn run() -> PathBuf {
     static RUN: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     RUN.get_or_init(|| {
         let dir = test_dir("failure-modes", "run");
-        let protocol = EpisodeProtocol { max_steps: MAX_STEPS, num_steps_wait: WAIT, stop_on_success: false };
+        let protocol = EpisodeProtocol {
+            max_steps: MAX_STEPS,
+            num_steps_wait: WAIT,
+            stop_on_success: false,
+            instruction_source: Default::default(),
+        };
         for scene in ALL {
             let key = key(scene);
             let mut steps = StepsBatchBuilder::new(key.clone(), OBJECTS.iter().map(|s| s.to_string()).collect());
@@ -158,6 +163,8 @@ fn run() -> PathBuf {
             }
             let summary = EpisodeSummary {
                 instruction: format!("{scene:?}"),
+                instruction_source: "bddl",
+                start_sha256: None,
                 n_policy_steps: last - WAIT,
                 first_success_step: first,
                 final_goal,

@@ -1,7 +1,8 @@
 //! Render parity: our camera frames against the reference env's, for the same sim state.
 //!
 //! `data/frames/mujoco-3.3.7/` holds frames the reference env rendered with the library we link
-//! (task 0 of each suite, init states 0–2, the init state and the golden state after step 40);
+//! (task 0 of each suite, init states 0–2, the init state and the golden state after step 40; and
+//! the LIBERO-PRO test tasks, init state 0, rendered by the PRO oracle venv);
 //! `data/frames/mujoco-3.2.3/` holds frames the reference env rendered on the published stack's
 //! MuJoCo (every task, init state 0). Both are made at set-up by `scripts/reference/frames.py`.
 
@@ -93,6 +94,12 @@ fn render_like(frames: &[ReferenceFrame], look: Look) -> Vec<(String, f64, f64, 
 #[test]
 fn frames_match_the_reference_env_on_the_linked_mujoco() {
     let frames = reference_frames("mujoco-3.3.7");
+    // LIBERO-PRO's suites too: one task each (its new objects' meshes and textures included),
+    // rendered by the PRO oracle venv on the same MuJoCo.
+    for (suite, task) in libero_e2e::PRO_TEST_TASKS {
+        let n = frames.iter().filter(|f| f.suite == suite && f.task_id == task).count();
+        assert_eq!(n, 4, "{suite} task {task}: 2 cameras x steps 0 and 40 (./setup.sh renders them)");
+    }
     let results = render_like(&frames, Look::Mujoco337);
     let identical = results.iter().filter(|r| r.1.is_infinite()).count();
     println!("{identical} of {} frames identical to the reference", results.len());

@@ -135,6 +135,7 @@ pub fn write_constructed_manifest(dir: &Path, policy: &str, num_steps_wait: u32)
         policy_identity: serde_json::json!({"kind": "constructed"}),
         num_steps_wait: num_steps_wait as i32,
         max_steps: Default::default(),
+        instruction_source: Default::default(),
         stop_on_success: false,
         substeps_per_step: 25,
         control_freq_hz: 20,
@@ -187,3 +188,25 @@ pub fn assert_goal_evidence_matches_steps(run: &Path, cap: u32) {
     }
     let _ = std::fs::remove_dir_all(&from_steps);
 }
+
+/// The LIBERO-PRO tasks the set-up builds for the tests (bundles, golden data, reference
+/// frames): one per PRO suite, spread over the task indices. Keep equal to `PRO_TEST_TASKS` in
+/// setup.sh.
+pub const PRO_TEST_TASKS: [(&str, u32); 16] = [
+    ("libero_spatial_swap", 0),
+    ("libero_spatial_object", 1),
+    ("libero_spatial_lan", 2),
+    ("libero_spatial_task", 3),
+    ("libero_object_swap", 3),
+    ("libero_object_object", 4),
+    ("libero_object_lan", 5),
+    ("libero_object_task", 6),
+    ("libero_goal_swap", 6),
+    ("libero_goal_object", 7),
+    ("libero_goal_lan", 8),
+    ("libero_goal_task", 9),
+    ("libero_10_swap", 9),
+    ("libero_10_object", 0),
+    ("libero_10_lan", 1),
+    ("libero_10_task", 2),
+];

@@ -182,7 +182,7 @@ fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
 }
 
 fn python_render_rate(python: &Path, suite: Suite, frames: u32, size: u32) -> Result<f64> {
-    let args = [suite.name(), "0", &frames.to_string(), &size.to_string()];
+    let args = [&suite.name(), "0", &frames.to_string(), &size.to_string()];
     reference_figure(python, "bench_render.py", &args, "pairs_per_s")
 }
 
@@ -235,5 +235,5 @@ fn raw_mujoco_rate(bundle: &libero_sim::bundle::TaskBundle, steps: u32, controls
 }
 
 fn python_rate(python: &Path, suite: Suite, steps: u32) -> Result<f64> {
-    reference_figure(python, "bench_reference.py", &[suite.name(), "0", &steps.to_string()], "steps_per_s")
+    reference_figure(python, "bench_reference.py", &[&suite.name(), "0", &steps.to_string()], "steps_per_s")
 }

@@ -13,6 +13,7 @@ mod media;
 mod published;
 mod report;
 mod results;
+mod robustness;
 mod run;
 mod sample_size;
 mod session;
@@ -47,6 +48,8 @@ enum Command {
     Run(run::Args),
     /// Per-suite and per-task success rates with Wilson 95% intervals, re-scorable.
     Results(results::Args),
+    /// LIBERO-PRO beside the base suites: rates, drops with intervals, the suite that falls most.
+    Robustness(robustness::Args),
     /// One primary failure mode per failed episode, and counts per suite (queries/failure_modes.sql).
     Failures(failures::Args),
     /// results.csv, per-task and failure tables and a self-contained report.html for one or more runs.
@@ -78,6 +81,7 @@ fn main() -> anyhow::Result<()> {
         Command::Specs(args) => specs::run(&bundles()?, args),
         Command::Run(args) => run::run(&bundles()?, args),
         Command::Results(args) => results::run(args),
+        Command::Robustness(args) => robustness::run(args),
         Command::Failures(args) => failures::run(args),
         Command::Report(args) => report::run(&bundles()?, args),
         Command::Sql(args) => sql::run(args),

@@ -76,7 +76,7 @@ mod tests {
         let batches = batches().unwrap();
         let rows: usize = batches.iter().map(|b| b.num_rows()).sum();
         assert!(rows >= 100, "{rows} rows");
-        let canonical: BTreeSet<&str> = Suite::CANONICAL.iter().map(|s| s.name()).collect();
+        let canonical: BTreeSet<String> = Suite::CANONICAL.iter().map(|s| s.name()).collect();
         // suites reported per (benchmark, model, variant, reported_by) of the `libero` rows
         let mut libero: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
         for b in &batches {
@@ -108,7 +108,7 @@ mod tests {
             }
         }
         for (key, suites) in &libero {
-            assert_eq!(suites.iter().map(String::as_str).collect::<BTreeSet<_>>(), canonical, "{key}");
+            assert_eq!(suites.iter().cloned().collect::<BTreeSet<_>>(), canonical, "{key}");
         }
         let models: BTreeSet<&str> = libero.keys().map(|k| k.split(" | ").next().unwrap()).collect();
         for m in ["OpenVLA", "OpenVLA-OFT", "pi0", "pi0-FAST", "pi0.5", "Octo", "Diffusion Policy"] {

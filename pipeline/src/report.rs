@@ -2,7 +2,8 @@
 //!
 //! Every number on the page comes from a query over the stored rows (`queries/results.sql`,
 //! `results_by_task.sql`, `failure_summary.sql`, `published_comparison.sql`,
-//! `video_selection.sql`); this module only lays them out. The page needs nothing beside it:
+//! `video_selection.sql`, and `robustness.sql`/`robustness_summary.sql` for a run with LIBERO-PRO
+//! suites); this module only lays them out. The page needs nothing beside it:
 //! plots are inline SVG, pictures and videos are embedded as data URLs, and its one script (a
 //! filter on the comparison table) is inline. The first run is the subject (its failure videos are
 //! shown); further runs (baselines, another checkpoint) are shown beside it.
@@ -46,6 +47,10 @@ pub struct RunTables {
     pub failure_modes: Vec<RecordBatch>,
     pub published: Vec<RecordBatch>,
     pub selection: Vec<RecordBatch>,
+    /// LIBERO-PRO beside the base suites (`queries/robustness*.sql`): empty when the run holds no
+    /// perturbed suite.
+    pub robustness: Vec<RecordBatch>,
+    pub robustness_summary: Vec<RecordBatch>,
 }
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
@@ -64,6 +69,10 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     write_csv(&args.out.join("failure_modes.csv"), &all(|t| &t.failure_modes))?;
     write_csv(&args.out.join("failure_summary.csv"), &all(|t| &t.failure_summary))?;
     write_csv(&args.out.join("published_comparison.csv"), &all(|t| &t.published))?;
+    if tables.iter().any(|t| !t.robustness.is_empty()) {
+        write_csv(&args.out.join("robustness.csv"), &all(|t| &t.robustness))?;
+        write_csv(&args.out.join("robustness_summary.csv"), &all(|t| &t.robustness_summary))?;
+    }
 
     let page = Page::build(&tables, &args.scoring.describe(), &args.out, args.embed_videos_mb * 1_000_000)?;
     let path = args.out.join("report.html");
@@ -87,6 +96,11 @@ async fn query_run(location: &str, scoring: Scoring) -> Result<RunTables> {
     session::materialize(&ctx, "failure_modes").await.context("queries/failure_modes.sql")?;
     let failure_modes =
         ctx.sql("SELECT * FROM failure_modes ORDER BY suite, task_id, init_state_id, seed").await?.collect().await?;
+    let (robustness, robustness_summary) = if crate::robustness::has_perturbations(&ctx).await? {
+        crate::robustness::tables(&ctx).await?
+    } else {
+        (vec![], vec![])
+    };
     Ok(RunTables {
         location: location.to_string(),
         manifest,
@@ -96,5 +110,7 @@ async fn query_run(location: &str, scoring: Scoring) -> Result<RunTables> {
         failure_modes,
         published: queries::run(&ctx, queries::PUBLISHED_COMPARISON).await?,
         selection: queries::run(&ctx, queries::VIDEO_SELECTION).await?,
+        robustness,
+        robustness_summary,
     })
 }

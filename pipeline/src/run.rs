@@ -14,10 +14,10 @@ use datafusion::prelude::SessionContext;
 use indicatif::{ProgressBar, ProgressStyle};
 use libero_policies::PolicySpec;
 use libero_schema::protocol::{CONTROL_FREQ_HZ, NUM_STEPS_WAIT, SUBSTEPS_PER_STEP};
-use libero_schema::{RunManifest, Suite, tables};
+use libero_schema::{InstructionSource, RunManifest, Suite, tables};
 use libero_sim::bundle::BundleSet;
 use libero_udfs::compaction;
-use libero_udfs::rollout::{RolloutContext, rollout_udf};
+use libero_udfs::rollout::{RolloutContext, RunProtocol, rollout_udf};
 use libero_udfs::run_store::{RunStore, parquet_bytes};
 use libero_udfs::steps_batch::EpisodeKey;
 use sha2::{Digest, Sha256};
@@ -42,6 +42,12 @@ pub struct Args {
     /// Wait steps before the policy acts.
     #[arg(long, default_value_t = NUM_STEPS_WAIT)]
     wait_steps: u32,
+    /// Which instruction text the policy is given: published (default: what each suite's published
+    /// evaluation gives, task.language for the LIBERO suites as OpenVLA's and openpi's loops do,
+    /// the BDDL (:language ...) tag for LIBERO-PRO's) or bddl (the tag everywhere, LIBERO-PRO's
+    /// protocol: a base task and its _swap/_object copies then get the same text).
+    #[arg(long, default_value = "published")]
+    instruction: InstructionSource,
     /// Stop an episode at its first success (as the published scripts do) instead of running
     /// to the cap; last-step re-scoring is then no longer possible.
     #[arg(long)]
@@ -67,7 +73,13 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         rayon::ThreadPoolBuilder::new().num_threads(j.max(1)).build_global().ok();
     }
     let max_steps: BTreeMap<Suite, u32> =
-        Suite::ALL.iter().map(|s| (*s, args.max_steps.unwrap_or_else(|| s.max_steps()))).collect();
+        tasks.iter().map(|(s, _)| (*s, args.max_steps.unwrap_or_else(|| s.max_steps()))).collect();
+    let protocol = RunProtocol {
+        max_steps,
+        num_steps_wait: args.wait_steps,
+        stop_on_success: args.stop_on_success,
+        instruction_source: args.instruction,
+    };
     let mut manifest = RunManifest {
         tables_version: tables::TABLES_VERSION,
         run_config: String::new(),
@@ -80,7 +92,8 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         policy: args.policy.name(),
         policy_identity: args.policy.resolve_identity()?,
         num_steps_wait: args.wait_steps as i32,
-        max_steps: max_steps.iter().map(|(s, n)| (s.name().to_string(), *n as i32)).collect(),
+        max_steps: protocol.max_steps.iter().map(|(s, n)| (s.name(), *n as i32)).collect(),
+        instruction_source: args.instruction,
         stop_on_success: args.stop_on_success,
         substeps_per_step: SUBSTEPS_PER_STEP as i32,
         control_freq_hz: CONTROL_FREQ_HZ as i32,
@@ -142,7 +155,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             // While this runs, `pipeline compact` refuses the run (compaction::WriterLock).
             let lock = compaction::WriterLock::this_process(now_rfc3339());
             store.put("writer.json", serde_json::to_vec(&lock)?.into()).await?;
-            let ran = run_pending(&args, &set, &specs, &manifest, &store, &max_steps, &tasks, pending).await;
+            let ran = run_pending(&args, &set, &specs, &manifest, &store, &protocol, &tasks, pending).await;
             store.delete_if_present("writer.json").await?;
             ran?;
         }
@@ -167,7 +180,7 @@ async fn run_pending(
     specs: &specs::Specs,
     manifest: &RunManifest,
     store: &RunStore,
-    max_steps: &BTreeMap<Suite, u32>,
+    protocol: &RunProtocol,
     tasks: &BTreeSet<(Suite, u32)>,
     pending: Vec<u32>,
 ) -> Result<()> {
@@ -179,9 +192,7 @@ async fn run_pending(
     let ctx = Arc::new(RolloutContext::new(
         set.clone(),
         args.policy.clone(),
-        max_steps.clone(),
-        args.wait_steps,
-        args.stop_on_success,
+        protocol.clone(),
         manifest.run_config.clone(),
         serde_json::to_string(&manifest)?,
         store.clone(),
@@ -290,6 +301,7 @@ async fn write_manifest(store: &RunStore, m: &RunManifest) -> Result<()> {
             Arc::new(BooleanArray::from(vec![m.stop_on_success])),
             i(m.substeps_per_step),
             i(m.control_freq_hz),
+            s(m.instruction_source.name()),
         ],
     )?;
     store.put("manifest.parquet", parquet_bytes(&batch, Some(&serde_json::to_string(m)?))?).await

@@ -82,6 +82,8 @@ pub mod queries {
     pub const FAILURE_SUMMARY: &str = "failure_summary";
     pub const VIDEO_SELECTION: &str = "video_selection";
     pub const PUBLISHED_COMPARISON: &str = "published_comparison";
+    pub const ROBUSTNESS: &str = "robustness";
+    pub const ROBUSTNESS_SUMMARY: &str = "robustness_summary";
 
     const COMPILED: &[(&str, &str)] = &[
         (SCORE, include_str!("../../queries/score.sql")),
@@ -96,6 +98,8 @@ pub mod queries {
         (FAILURE_SUMMARY, include_str!("../../queries/failure_summary.sql")),
         (VIDEO_SELECTION, include_str!("../../queries/video_selection.sql")),
         (PUBLISHED_COMPARISON, include_str!("../../queries/published_comparison.sql")),
+        (ROBUSTNESS, include_str!("../../queries/robustness.sql")),
+        (ROBUSTNESS_SUMMARY, include_str!("../../queries/robustness_summary.sql")),
     ];
 
     /// The text of `queries/<name>.sql`: from `$LIBERO_QUERIES` when set, else compiled in.
@@ -147,6 +151,15 @@ pub mod queries {
                 .with_context(|| format!("queries/{name}.sql"))?;
         }
         Ok(last)
+    }
+
+    /// Define the views of a query file (every statement but the last), computing nothing.
+    pub async fn define_views(ctx: &datafusion::prelude::SessionContext, name: &str) -> Result<()> {
+        let statements = statements(&text(name)?);
+        for statement in &statements[..statements.len().saturating_sub(1)] {
+            ctx.sql(statement).await.with_context(|| format!("queries/{name}.sql"))?.collect().await?;
+        }
+        Ok(())
     }
 
     #[cfg(test)]
@@ -213,6 +226,7 @@ pub async fn open(location: &str, success: SuccessDefinition, cap: Option<u32>) 
     define_scored(&ctx, success, cap, evidence).await?;
     // Views only: nothing is computed until a query reads them.
     queries::run(&ctx, queries::FAILURE_MODES).await?;
+    queries::define_views(&ctx, queries::ROBUSTNESS).await?;
     Ok((ctx, store))
 }
 

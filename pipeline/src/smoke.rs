@@ -50,7 +50,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             args.init_state,
             args.seed,
             args.panel.look.name(),
-            bundle.task.instruction
+            bundle.task.instruction(Default::default()).0
         );
         let panel = render_panel(&mut env, &mut renderer, &layout, &caption)?;
         let path = args.out.join(format!("{}.png", suite.name()));

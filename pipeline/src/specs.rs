@@ -19,11 +19,16 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+/// A comma-separated suite list (an alias, so clap takes it as one value, parsed whole).
+type SuiteList = Vec<Suite>;
+
 #[derive(clap::Args)]
 pub struct Args {
-    /// Suites to include.
-    #[arg(long, value_delimiter = ',', default_value = "libero_spatial,libero_object,libero_goal,libero_10")]
-    suites: Vec<Suite>,
+    /// Suites to include: LIBERO's (libero_spatial, libero_object, libero_goal, libero_10,
+    /// libero_90) and LIBERO-PRO's <suite>_{swap,object,lan,task} of the first four, or libero_pro
+    /// for those 16 (their bundles: ./setup.sh --suites libero_pro).
+    #[arg(long, default_value = "libero_spatial,libero_object,libero_goal,libero_10", value_parser = Suite::parse_list)]
+    suites: SuiteList,
     /// Trials per task; trial i runs init state i (the canonical protocol runs 50); at least 1.
     #[arg(long, default_value_t = TRIALS_PER_TASK, value_parser = clap::value_parser!(u32).range(1..))]
     trials: u32,
@@ -45,6 +50,14 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         let available: Vec<u32> = set.tasks().iter().filter(|t| t.suite == s.name()).map(|t| t.task_id).collect();
         if available.is_empty() {
             bail!("no task bundles for {s}; build them with ./setup.sh --suites {s}");
+        }
+        if args.tasks.is_empty() && available.len() < s.n_tasks() as usize {
+            bail!(
+                "{s} has bundles for {} of its {} tasks ({}: the set-up builds those for the tests); build the whole suite with ./setup.sh --suites {s}, or pick those with --tasks",
+                available.len(),
+                s.n_tasks(),
+                available.iter().map(u32::to_string).collect::<Vec<_>>().join(", ")
+            );
         }
         let chosen: Vec<u32> = if args.tasks.is_empty() { available.clone() } else { args.tasks.clone() };
         for t in chosen {
@@ -209,7 +222,7 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
                 }
             }
         }
-        let key = EpisodeKey::new(s.name(), task.value(r), init.value(r), seed.value(r));
+        let key = EpisodeKey::new(&s.name(), task.value(r), init.value(r), seed.value(r));
         if let Some(prev) = first_row.insert(key.episode_key.clone(), r) {
             problems.push(format!("{row}: duplicate episode key {} (first at row {prev})", key.episode_key));
         }

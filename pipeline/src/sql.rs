@@ -1,7 +1,8 @@
 //! `pipeline sql "<query>" [--run RUN]`: ad-hoc SQL over a stored run.
 //!
-//! Tables: `specs`, `steps`, `episodes`, `manifest`, and the view `scored` (episode outcomes under
-//! `--success` / `--cap`, from `queries/score.sql`); `published` (published LIBERO numbers).
+//! Tables: `specs`, `steps`, `episodes`, `manifest`, and the views `scored` (episode outcomes under
+//! `--success` / `--cap`, from `queries/score.sql`), `failure_modes` and `robustness` (LIBERO-PRO
+//! cells beside their base suites, `queries/robustness.sql`); `published` (published LIBERO numbers).
 //! Functions: `wilson(success [, level])`, `wilson_lo(k, n [, level])`, `wilson_hi(k, n [, level])`,
 //! `mcnemar_exact_p(b, c)`, `newcombe_paired_lo/hi(n11, n10, n01, n00 [, level])`,
 //! `sample_size_two_proportions(p1, p2 [, alpha [, power]])` and DataFusion's built-ins.

@@ -13,4 +13,4 @@ pub mod protocol;
 pub mod tables;
 
 pub use manifest::RunManifest;
-pub use protocol::Suite;
+pub use protocol::{BaseSuite, InstructionSource, Perturbation, Suite};

@@ -22,11 +22,19 @@ pub struct RunManifest {
     /// Checkpoint hash, unnorm key, chunking, image preprocessing, parameters (policy-defined).
     pub policy_identity: serde_json::Value,
     pub num_steps_wait: i32,
-    /// Episode cap in policy steps per suite name.
+    /// Episode cap in policy steps per suite name (the run's suites).
     pub max_steps: BTreeMap<String, i32>,
+    /// Which instruction text the policy is given (`pipeline run --instruction`); runs made before
+    /// bundle format 3 gave the BDDL text.
+    #[serde(default = "bddl_before_format_3")]
+    pub instruction_source: crate::InstructionSource,
     pub stop_on_success: bool,
     pub substeps_per_step: i32,
     pub control_freq_hz: i32,
+}
+
+fn bddl_before_format_3() -> crate::InstructionSource {
+    crate::InstructionSource::Bddl
 }
 
 impl RunManifest {
@@ -42,6 +50,7 @@ impl RunManifest {
             "policy_identity": self.policy_identity,
             "num_steps_wait": self.num_steps_wait,
             "max_steps": self.max_steps,
+            "instruction_source": self.instruction_source,
             "stop_on_success": self.stop_on_success,
             "substeps_per_step": self.substeps_per_step,
             "control_freq_hz": self.control_freq_hz,

@@ -22,10 +22,19 @@ pub const SUBSTEPS_PER_STEP: u32 = 25;
 /// Rendered camera size of the published evaluations (square).
 pub const RENDER_SIZE: u32 = 256;
 
-/// The LIBERO task suites this pipeline knows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Suite {
+/// The LIBERO task suites: the published ones (`BaseSuite`) and LIBERO-PRO's perturbed copies of
+/// the four canonical ones (`libero_goal_swap`, ...), named `<base>_<perturbation>`. The base suite
+/// and the perturbation are derived from the name, never typed by hand: every table that carries
+/// them gets them from here.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Suite {
+    pub base: BaseSuite,
+    pub perturbation: Option<Perturbation>,
+}
+
+/// The suites of the LIBERO benchmark itself.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum BaseSuite {
     LiberoSpatial,
     LiberoObject,
     LiberoGoal,
@@ -33,48 +42,228 @@ pub enum Suite {
     Libero90,
 }
 
-impl Suite {
-    /// The four suites of the canonical benchmark (libero_90 is pre-training data, not reported).
-    pub const CANONICAL: [Suite; 4] = [Suite::LiberoSpatial, Suite::LiberoObject, Suite::LiberoGoal, Suite::Libero10];
-    pub const ALL: [Suite; 5] =
-        [Suite::LiberoSpatial, Suite::LiberoObject, Suite::LiberoGoal, Suite::Libero10, Suite::Libero90];
+/// LIBERO-PRO's perturbation dimensions (arXiv 2510.03827; `shared/reference/perturbation-spec.md` §A).
+/// Each is a suite of its own: 10 tasks × 50 init states, the base suite's caps.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Perturbation {
+    /// The objects of interest start in each other's places (new init states).
+    Swap,
+    /// The objects of interest replaced by other-looking or other-sized ones (new meshes, textures).
+    Object,
+    /// A paraphrased instruction, in the base task's scene with its goal (but, as shipped, new
+    /// init states: see `queries/robustness.sql`).
+    Lan,
+    /// A new goal in the same scene (new goal predicate, objects of interest and instruction).
+    Task,
+    /// The workspace moved to the living-room table. Not shipped by any package: generated locally
+    /// by LIBERO-PRO's own generator, so its numbers cannot be compared with the authors'.
+    Env,
+}
+
+impl Perturbation {
+    pub const PRO: [Perturbation; 4] =
+        [Perturbation::Swap, Perturbation::Object, Perturbation::Lan, Perturbation::Task];
+    pub const ALL: [Perturbation; 5] =
+        [Perturbation::Swap, Perturbation::Object, Perturbation::Lan, Perturbation::Task, Perturbation::Env];
 
     pub fn name(self) -> &'static str {
         match self {
-            Suite::LiberoSpatial => "libero_spatial",
-            Suite::LiberoObject => "libero_object",
-            Suite::LiberoGoal => "libero_goal",
-            Suite::Libero10 => "libero_10",
-            Suite::Libero90 => "libero_90",
+            Perturbation::Swap => "swap",
+            Perturbation::Object => "object",
+            Perturbation::Lan => "lan",
+            Perturbation::Task => "task",
+            Perturbation::Env => "env",
+        }
+    }
+
+    /// Made here from the reference's generator rather than shipped by the authors.
+    pub fn generated_locally(self) -> bool {
+        self == Perturbation::Env
+    }
+}
+
+impl BaseSuite {
+    /// The four suites of the canonical benchmark (libero_90 is pre-training data, not reported).
+    pub const CANONICAL: [BaseSuite; 4] =
+        [BaseSuite::LiberoSpatial, BaseSuite::LiberoObject, BaseSuite::LiberoGoal, BaseSuite::Libero10];
+    pub const ALL: [BaseSuite; 5] = [
+        BaseSuite::LiberoSpatial,
+        BaseSuite::LiberoObject,
+        BaseSuite::LiberoGoal,
+        BaseSuite::Libero10,
+        BaseSuite::Libero90,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            BaseSuite::LiberoSpatial => "libero_spatial",
+            BaseSuite::LiberoObject => "libero_object",
+            BaseSuite::LiberoGoal => "libero_goal",
+            BaseSuite::Libero10 => "libero_10",
+            BaseSuite::Libero90 => "libero_90",
         }
     }
 
     /// Episode length cap in policy steps, excluding the wait steps
-    /// (`max_steps` of OpenVLA's `run_libero_eval.py`: 220 / 280 / 300 / 520 / 400).
+    /// (`max_steps` of OpenVLA's `run_libero_eval.py`: 220 / 280 / 300 / 520 / 400; LIBERO-PRO's
+    /// README `TASK_MAX_STEPS` keeps them for its suites).
     pub fn max_steps(self) -> u32 {
         match self {
-            Suite::LiberoSpatial => 220,
-            Suite::LiberoObject => 280,
-            Suite::LiberoGoal => 300,
-            Suite::Libero10 => 520,
-            Suite::Libero90 => 400,
+            BaseSuite::LiberoSpatial => 220,
+            BaseSuite::LiberoObject => 280,
+            BaseSuite::LiberoGoal => 300,
+            BaseSuite::Libero10 => 520,
+            BaseSuite::Libero90 => 400,
         }
+    }
+
+    /// Tasks in the suite (and in each of its LIBERO-PRO copies).
+    pub fn n_tasks(self) -> u32 {
+        if self == BaseSuite::Libero90 { 90 } else { 10 }
+    }
+}
+
+impl Suite {
+    pub const LIBERO_SPATIAL: Suite = Suite::base(BaseSuite::LiberoSpatial);
+    pub const LIBERO_OBJECT: Suite = Suite::base(BaseSuite::LiberoObject);
+    pub const LIBERO_GOAL: Suite = Suite::base(BaseSuite::LiberoGoal);
+    pub const LIBERO_10: Suite = Suite::base(BaseSuite::Libero10);
+    pub const LIBERO_90: Suite = Suite::base(BaseSuite::Libero90);
+    /// The four suites of the canonical benchmark.
+    pub const CANONICAL: [Suite; 4] =
+        [Suite::LIBERO_SPATIAL, Suite::LIBERO_OBJECT, Suite::LIBERO_GOAL, Suite::LIBERO_10];
+    /// The name `pipeline specs --suites` and `./setup.sh --suites` take for the 16 LIBERO-PRO suites.
+    pub const PRO_GROUP: &'static str = "libero_pro";
+
+    pub const fn base(base: BaseSuite) -> Suite {
+        Suite { base, perturbation: None }
+    }
+
+    /// Every suite this build knows: the five LIBERO suites, then per canonical suite its five
+    /// LIBERO-PRO copies.
+    pub fn all() -> Vec<Suite> {
+        let mut out: Vec<Suite> = BaseSuite::ALL.into_iter().map(Suite::base).collect();
+        for base in BaseSuite::CANONICAL {
+            out.extend(Perturbation::ALL.into_iter().map(|p| Suite { base, perturbation: Some(p) }));
+        }
+        out
+    }
+
+    /// The 16 LIBERO-PRO suites (the four shipped dimensions of the four canonical suites).
+    pub fn pro() -> Vec<Suite> {
+        BaseSuite::CANONICAL
+            .into_iter()
+            .flat_map(|base| Perturbation::PRO.into_iter().map(move |p| Suite { base, perturbation: Some(p) }))
+            .collect()
+    }
+
+    pub fn name(self) -> String {
+        match self.perturbation {
+            None => self.base.name().to_string(),
+            Some(p) => format!("{}_{}", self.base.name(), p.name()),
+        }
+    }
+
+    /// The perturbation's name, `none` for a base suite (the value of the tables' `perturbation`).
+    pub fn perturbation_name(self) -> &'static str {
+        self.perturbation.map_or("none", Perturbation::name)
+    }
+
+    pub fn max_steps(self) -> u32 {
+        self.base.max_steps()
+    }
+
+    pub fn n_tasks(self) -> u32 {
+        self.base.n_tasks()
+    }
+
+    /// A list of suite names with `libero_pro` standing for the 16 LIBERO-PRO suites.
+    pub fn parse_list(text: &str) -> Result<Vec<Suite>, String> {
+        let mut out = Vec::new();
+        for name in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+            let more = if name == Suite::PRO_GROUP { Suite::pro() } else { vec![name.parse()?] };
+            for s in more {
+                if !out.contains(&s) {
+                    out.push(s);
+                }
+            }
+        }
+        Ok(out)
     }
 }
 
 impl fmt::Display for Suite {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
+        f.write_str(&self.name())
     }
 }
 
 impl FromStr for Suite {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Suite::ALL.into_iter().find(|x| x.name() == s).ok_or_else(|| {
-            let known: Vec<_> = Suite::ALL.iter().map(|x| x.name()).collect();
-            format!("unknown suite {s:?}; known suites: {}", known.join(", "))
+        Suite::all().into_iter().find(|x| x.name() == s).ok_or_else(|| {
+            let bases: Vec<_> = BaseSuite::ALL.iter().map(|x| x.name()).collect();
+            let dims: Vec<_> = Perturbation::ALL.iter().map(|p| p.name()).collect();
+            format!(
+                "unknown suite {s:?}; known suites: {}, and LIBERO-PRO's <suite>_{{{}}} of the first four \
+                 (e.g. libero_goal_swap; {} names the 16 shipped ones)",
+                bases.join(", "),
+                dims.join(","),
+                Suite::PRO_GROUP
+            )
         })
+    }
+}
+
+impl Serialize for Suite {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&self.name())
+    }
+}
+
+impl<'de> Deserialize<'de> for Suite {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        String::deserialize(d)?.parse().map_err(serde::de::Error::custom)
+    }
+}
+
+/// Which of a task's instruction texts the policy is given (`pipeline run --instruction`).
+///
+/// A LIBERO task has two: the BDDL `(:language ...)` tag (`env.language_instruction`) and
+/// `task.language`, derived from the BDDL file name. They can differ in more than case
+/// (libero_goal 0: "open the middle layer of the drawer" vs "open the middle drawer of the
+/// cabinet"), and LIBERO-PRO's `_lan`/`_task` suites carry their new instruction only in the tag.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum InstructionSource {
+    /// What the published evaluation of the suite gives: `task.language` for the LIBERO suites
+    /// (OpenVLA's and openpi's loops, `task_description = task.language`, the text the LIBERO
+    /// training sets use); the BDDL tag for the LIBERO-PRO suites (LIBERO-PRO's evaluator,
+    /// `prompt = env.language_instruction`; `task.language` there is the unperturbed base text).
+    #[default]
+    Published,
+    /// The BDDL tag for every suite (LIBERO-PRO's protocol applied to the base suites too): a base
+    /// task and its `_swap`/`_object` copies then give the policy the same text.
+    Bddl,
+}
+
+impl InstructionSource {
+    pub fn name(self) -> &'static str {
+        match self {
+            InstructionSource::Published => "published",
+            InstructionSource::Bddl => "bddl",
+        }
+    }
+}
+
+impl FromStr for InstructionSource {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "published" => Ok(InstructionSource::Published),
+            "bddl" => Ok(InstructionSource::Bddl),
+            _ => Err(format!("unknown instruction source {s:?}; use published (default) or bddl")),
+        }
     }
 }
 
@@ -84,10 +273,26 @@ mod tests {
 
     #[test]
     fn suite_names_round_trip_and_unknown_names_list_the_known_ones() {
-        for s in Suite::ALL {
+        for s in Suite::all() {
             assert_eq!(s.name().parse::<Suite>().unwrap(), s);
         }
+        assert_eq!(Suite::all().len(), 5 + 4 * 5);
         let err = "libero_99".parse::<Suite>().unwrap_err();
-        assert!(err.contains("libero_spatial") && err.contains("libero_99"), "{err}");
+        assert!(err.contains("libero_spatial") && err.contains("libero_99") && err.contains("swap"), "{err}");
+        // PRO copies exist for the canonical suites only
+        assert!("libero_90_swap".parse::<Suite>().is_err());
+    }
+
+    #[test]
+    fn pro_suites_derive_their_base_and_perturbation_from_the_name() {
+        let s: Suite = "libero_10_task".parse().unwrap();
+        assert_eq!(s.base, BaseSuite::Libero10);
+        assert_eq!(s.perturbation, Some(Perturbation::Task));
+        assert_eq!(s.perturbation_name(), "task");
+        assert_eq!(s.max_steps(), 520);
+        assert_eq!(Suite::LIBERO_GOAL.perturbation_name(), "none");
+        let list = Suite::parse_list("libero_goal,libero_pro,libero_goal_swap").unwrap();
+        assert_eq!(list.len(), 1 + 16, "libero_pro expands to the 16 shipped suites, no duplicates");
+        assert!(!list.iter().any(|s| s.perturbation == Some(Perturbation::Env)));
     }
 }

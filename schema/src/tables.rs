@@ -17,7 +17,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, LazyLock};
 
 /// Version of the step/episode/manifest layout; stored in every manifest and part.
-pub const TABLES_VERSION: u32 = 3;
+pub const TABLES_VERSION: u32 = 4;
 /// Arrow field-metadata key holding a field's documentation.
 pub const DOC_KEY: &str = "doc";
 /// Parquet key-value metadata key holding the run manifest (JSON) in every part.
@@ -129,7 +129,36 @@ pub fn episodes() -> SchemaRef {
     static S: LazyLock<SchemaRef> = LazyLock::new(|| {
         let mut f = key_fields();
         f.extend([
-            field("instruction", DataType::Utf8, false, "language instruction from the BDDL (:language ...)"),
+            field(
+                "base_suite",
+                DataType::Utf8,
+                true,
+                "the LIBERO suite the episode's suite is (libero_goal) or perturbs (libero_goal_swap -> libero_goal); derived from the suite name. Null in runs written before tables v4 (the queries derive it there)",
+            ),
+            field(
+                "perturbation",
+                DataType::Utf8,
+                true,
+                "LIBERO-PRO perturbation of the suite: none, swap, object, lan, task, env; derived from the suite name. Null in runs written before tables v4 (the queries derive it there)",
+            ),
+            field(
+                "instruction",
+                DataType::Utf8,
+                false,
+                "the instruction the policy was given (which text: instruction_source)",
+            ),
+            field(
+                "instruction_source",
+                DataType::Utf8,
+                true,
+                "which text `instruction` is: filename (task.language, the published loops' for the LIBERO suites) or bddl (the BDDL (:language ...) tag, LIBERO-PRO's); `pipeline run --instruction`. Null before tables v4 (bddl then)",
+            ),
+            field(
+                "start_sha256",
+                DataType::Utf8,
+                true,
+                "sha256 of everything the episode starts from: the scene (scene.xml's hash), the fixture poses of (seed, init_state_id) and the init state row. Equal hashes start identically, so their episodes pair (queries/robustness.sql). Null before tables v4 or when the episode could not start",
+            ),
             field("policy", DataType::Utf8, false, "policy name (identity in the manifest)"),
             field("run_config", DataType::Utf8, false, "hash of the run configuration (manifest.run_config)"),
             field("max_steps", DataType::Int32, false, "episode cap in policy steps used for this episode"),
@@ -207,6 +236,12 @@ pub fn manifest() -> SchemaRef {
             field("stop_on_success", DataType::Boolean, false, "episodes stop at the first success"),
             field("substeps_per_step", DataType::Int32, false, "physics substeps per env step"),
             field("control_freq_hz", DataType::Int32, false, "env control rate"),
+            field(
+                "instruction_source",
+                DataType::Utf8,
+                false,
+                "which instruction text the policy was given: published (the suite's published evaluation's) or bddl",
+            ),
         ]))
     });
     S.clone()

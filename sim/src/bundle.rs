@@ -23,8 +23,8 @@
 
 use crate::SimError;
 use crate::npy::{self, Array2};
-use libero_schema::Suite;
 use libero_schema::bundle_format::{BUNDLE_FORMAT_VERSION, MUJOCO_VERSION};
+use libero_schema::{InstructionSource, Suite};
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -35,7 +35,7 @@ pub struct TaskIndexEntry {
     pub suite: String,
     pub task_id: u32,
     pub name: String,
-    pub instruction: String,
+    pub instructions: Instructions,
     pub path: String,
     pub nq: usize,
     pub nv: usize,
@@ -89,10 +89,12 @@ impl BundleSet {
             let ids: Vec<String> =
                 self.index.iter().filter(|t| t.suite == suite.name()).map(|t| t.task_id.to_string()).collect();
             SimError::UnknownTask {
-                suite: suite.name().into(),
+                suite: suite.name(),
                 task_id,
                 available: if ids.is_empty() {
                     format!("none (build them with ./setup.sh --suites {suite})")
+                } else if (task_id as usize) < suite.n_tasks() as usize {
+                    format!("{} only (build the whole suite with ./setup.sh --suites {suite})", ids.join(", "))
                 } else {
                     ids.join(", ")
                 },
@@ -232,14 +234,46 @@ pub struct InitStatesInfo {
     pub nv: usize,
 }
 
+/// A task's instruction texts (see [`InstructionSource`]; the exporter's `instructions()`).
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+pub struct Instructions {
+    /// The BDDL `(:language ...)` tag as the env parses it (`env.language_instruction`, lowercased).
+    pub bddl: String,
+    /// `task.language`, derived from the BDDL file name; for LIBERO-PRO's `_lan` and `_task` the
+    /// unperturbed base text, never given to a policy there.
+    pub filename: String,
+    /// The one the suite's published evaluation gives: `filename` for the LIBERO suites, `bddl`
+    /// for the LIBERO-PRO suites.
+    pub published: String,
+}
+
+impl Instructions {
+    /// The text a policy gets under `source` in a LIBERO-PRO suite (`pro`) or a LIBERO one, and
+    /// which text it is (`filename` or `bddl`).
+    pub fn given(&self, source: InstructionSource, pro: bool) -> (&str, &'static str) {
+        match source {
+            InstructionSource::Published if !pro => (&self.filename, "filename"),
+            _ => (&self.bddl, "bddl"),
+        }
+    }
+}
+
 /// `task.json`.
 #[derive(Debug, Clone, Deserialize)]
 pub struct TaskInfo {
     pub suite: String,
     pub task_id: u32,
     pub name: String,
-    /// From the BDDL `(:language ...)` tag (not the file name, which sometimes says otherwise).
-    pub instruction: String,
+    /// The LIBERO suite this task's suite is or perturbs (the exporter's view; the pipeline derives
+    /// its own from the suite name and the bundle tests hold the two equal).
+    pub base_suite: String,
+    /// LIBERO-PRO perturbation (`swap`, `object`, `lan`, `task`, `env`), null for a LIBERO suite.
+    pub perturbation: Option<String>,
+    /// Made at set-up by LIBERO-PRO's own generator rather than shipped (the `_env` suites): its
+    /// numbers cannot be compared with the authors'.
+    #[serde(default)]
+    pub generated_locally: bool,
+    pub instructions: Instructions,
     pub problem: String,
     pub bddl_file: String,
     /// The conjunction of goal predicates, e.g. `[["on", "akita_black_bowl_1", "plate_1"]]`.
@@ -260,6 +294,12 @@ pub struct TaskInfo {
 }
 
 impl TaskInfo {
+    /// The instruction a policy gets under `source`, and which text it is (`filename` or `bddl`,
+    /// the value of the episodes' `instruction_source`).
+    pub fn instruction(&self, source: InstructionSource) -> (&str, &'static str) {
+        self.instructions.given(source, self.perturbation.is_some())
+    }
+
     /// The objects a failure analysis watches, as object names (the names of
     /// `Observation::object_poses`): the BDDL's `:obj_of_interest` plus every object a goal term
     /// names, with a region (`wooden_cabinet_1_top_region`) replaced by the object that owns it

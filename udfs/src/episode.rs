@@ -16,7 +16,7 @@ use arrow::buffer::OffsetBuffer;
 use arrow::datatypes::{DataType, Field};
 use libero_policies::{Observation, Policy};
 use libero_schema::protocol::WAIT_ACTION;
-use libero_schema::tables;
+use libero_schema::{InstructionSource, Suite, tables};
 use libero_sim::SimError;
 use libero_sim::env::LiberoEnv;
 use std::sync::Arc;
@@ -28,6 +28,8 @@ pub struct EpisodeProtocol {
     pub max_steps: u32,
     pub num_steps_wait: u32,
     pub stop_on_success: bool,
+    /// Which of the task's instruction texts the policy gets.
+    pub instruction_source: InstructionSource,
 }
 
 /// Why an episode ended early; stored as `error_kind` / `error`.
@@ -61,6 +63,10 @@ impl EpisodeError {
 #[derive(Debug, Clone)]
 pub struct EpisodeSummary {
     pub instruction: String,
+    /// Which text `instruction` is: `filename` or `bddl`.
+    pub instruction_source: &'static str,
+    /// Hash of what the episode starts from ([`start_sha256`]); None when it could not start.
+    pub start_sha256: Option<String>,
     pub n_policy_steps: u32,
     pub first_success_step: Option<u32>,
     pub final_goal: bool,
@@ -81,9 +87,11 @@ impl EpisodeSummary {
     }
 
     /// The summary of an episode that could not start (no env, no steps).
-    pub fn failed_to_start(instruction: String, error: EpisodeError) -> Self {
+    pub fn failed_to_start((instruction, instruction_source): (String, &'static str), error: EpisodeError) -> Self {
         EpisodeSummary {
             instruction,
+            instruction_source,
+            start_sha256: None,
             n_policy_steps: 0,
             first_success_step: None,
             final_goal: false,
@@ -98,6 +106,26 @@ impl EpisodeSummary {
     }
 }
 
+/// sha256 of everything an episode starts from: the scene file's hash (from the bundle's
+/// provenance), the fixture poses of (seed, episode) and the init state row. Two episodes with the
+/// same hash start in the same state, whichever suite they belong to (a perturbation that only
+/// changes the instruction keeps it), so their outcomes can be compared pair by pair.
+pub fn start_sha256(bundle: &libero_sim::bundle::TaskBundle, key: &EpisodeKey) -> Result<String, SimError> {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
+    h.update(bundle.provenance["sha256"]["scene_xml"].as_str().unwrap_or_default().as_bytes());
+    for (body, pose) in bundle.fixture_poses(key.seed as u64, key.init_state_id as usize)? {
+        h.update(body.as_bytes());
+        for v in pose.pos.iter().chain(&pose.quat) {
+            h.update(v.to_le_bytes());
+        }
+    }
+    for v in bundle.init_state(key.init_state_id as usize)? {
+        h.update(v.to_le_bytes());
+    }
+    Ok(format!("{:x}", h.finalize()))
+}
+
 /// Run one episode on `env` (already built for the key's task) with `policy`.
 pub fn run_episode(
     env: &mut LiberoEnv,
@@ -107,11 +135,14 @@ pub fn run_episode(
     policy_seed: u64,
 ) -> (StepsBatchBuilder, EpisodeSummary) {
     let t_start = Instant::now();
-    let instruction = env.bundle().task.instruction.clone();
+    let (instruction, instruction_source) = env.bundle().task.instruction(protocol.instruction_source);
+    let instruction = instruction.to_string();
     let object_names: Vec<String> = env.object_names().map(str::to_string).collect();
     let mut steps = StepsBatchBuilder::new(key.clone(), object_names);
     let mut summary = EpisodeSummary {
         instruction: instruction.clone(),
+        instruction_source,
+        start_sha256: start_sha256(env.bundle(), key).ok(),
         n_policy_steps: 0,
         first_success_step: None,
         final_goal: false,
@@ -274,13 +305,20 @@ pub fn episode_batch(
     let interest = StringArray::from(s.objects_of_interest.clone());
     let objects_of_interest =
         ListArray::try_new(item, OffsetBuffer::from_lengths([s.objects_of_interest.len()]), Arc::new(interest), None)?;
+    // derived from the suite name, never typed by hand (null only for a suite this build does not
+    // know, which validation refuses before a run starts)
+    let suite: Option<Suite> = key.suite.parse().ok();
     let mut columns: Vec<ArrayRef> = vec![
         Arc::new(StringArray::from(vec![key.episode_key.as_str()])),
         Arc::new(StringArray::from(vec![key.suite.as_str()])),
         Arc::new(Int32Array::from(vec![key.task_id])),
         Arc::new(Int32Array::from(vec![key.init_state_id])),
         Arc::new(Int64Array::from(vec![key.seed])),
+        Arc::new(StringArray::from(vec![suite.map(|s| s.base.name())])),
+        Arc::new(StringArray::from(vec![suite.map(|s| s.perturbation_name())])),
         Arc::new(StringArray::from(vec![s.instruction.as_str()])),
+        Arc::new(StringArray::from(vec![s.instruction_source])),
+        Arc::new(StringArray::from(vec![s.start_sha256.as_deref()])),
         Arc::new(StringArray::from(vec![ctx.policy])),
         Arc::new(StringArray::from(vec![ctx.run_config])),
         Arc::new(Int32Array::from(vec![ctx.protocol.max_steps as i32])),

@@ -37,10 +37,7 @@ use std::sync::{Arc, Mutex, OnceLock, Weak};
 pub struct RolloutContext {
     pub bundles: Arc<BundleSet>,
     pub policy: PolicySpec,
-    /// Episode cap in policy steps per suite.
-    pub max_steps: BTreeMap<Suite, u32>,
-    pub num_steps_wait: u32,
-    pub stop_on_success: bool,
+    pub protocol: RunProtocol,
     pub run_config: String,
     /// The manifest as JSON, stored in every part's key-value metadata.
     pub manifest_json: String,
@@ -51,6 +48,27 @@ pub struct RolloutContext {
     successes: AtomicU64,
     finished: AtomicU64,
     tasks: TaskCache,
+}
+
+/// The protocol settings of a run: what every episode's [`EpisodeProtocol`] is made from.
+#[derive(Debug, Clone)]
+pub struct RunProtocol {
+    /// Episode cap in policy steps per suite (a suite not listed gets its published cap).
+    pub max_steps: BTreeMap<Suite, u32>,
+    pub num_steps_wait: u32,
+    pub stop_on_success: bool,
+    pub instruction_source: libero_schema::InstructionSource,
+}
+
+impl RunProtocol {
+    pub fn episode(&self, suite: Suite) -> EpisodeProtocol {
+        EpisodeProtocol {
+            max_steps: self.max_steps.get(&suite).copied().unwrap_or_else(|| suite.max_steps()),
+            num_steps_wait: self.num_steps_wait,
+            stop_on_success: self.stop_on_success,
+            instruction_source: self.instruction_source,
+        }
+    }
 }
 
 /// A task's bundle and its compiled model.
@@ -139,9 +157,7 @@ impl RolloutContext {
     pub fn new(
         bundles: Arc<BundleSet>,
         policy: PolicySpec,
-        max_steps: BTreeMap<Suite, u32>,
-        num_steps_wait: u32,
-        stop_on_success: bool,
+        protocol: RunProtocol,
         run_config: String,
         manifest_json: String,
         store: RunStore,
@@ -151,9 +167,7 @@ impl RolloutContext {
         RolloutContext {
             bundles,
             policy,
-            max_steps,
-            num_steps_wait,
-            stop_on_success,
+            protocol,
             run_config,
             manifest_json,
             store,
@@ -169,14 +183,6 @@ impl RolloutContext {
     /// per worker and task).
     pub fn task_compiles(&self) -> u64 {
         self.tasks.compiles.load(Ordering::Relaxed)
-    }
-
-    fn protocol(&self, suite: Suite) -> EpisodeProtocol {
-        EpisodeProtocol {
-            max_steps: self.max_steps.get(&suite).copied().unwrap_or_else(|| suite.max_steps()),
-            num_steps_wait: self.num_steps_wait,
-            stop_on_success: self.stop_on_success,
-        }
     }
 }
 
@@ -341,7 +347,7 @@ impl RolloutUdf {
     fn run_row(&self, key: &EpisodeKey, extras: Option<&RecordBatch>) -> anyhow::Result<RowResult> {
         let ctx = &self.ctx;
         let suite: Suite = key.suite.parse().map_err(anyhow::Error::msg)?;
-        let protocol = ctx.protocol(suite);
+        let protocol = ctx.protocol.episode(suite);
         let run = || -> (arrow::error::Result<RecordBatch>, EpisodeSummary) {
             WORKER_ENV.with(|cell| {
                 let mut cached = cell.borrow_mut();
@@ -358,8 +364,14 @@ impl RolloutUdf {
                     match env {
                         Ok(env) => *cached = Some((task, slot, env)),
                         Err(e) => {
-                            let instruction =
-                                ctx.bundles.entry(suite, task.1).map(|t| t.instruction.clone()).unwrap_or_default();
+                            let instruction = ctx
+                                .bundles
+                                .entry(suite, task.1)
+                                .map(|t| {
+                                    t.instructions.given(protocol.instruction_source, suite.perturbation.is_some())
+                                })
+                                .map(|(text, source)| (text.to_string(), source))
+                                .unwrap_or_default();
                             let s = EpisodeSummary::failed_to_start(instruction, EpisodeError::from_sim(&e));
                             return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
                         }
@@ -369,8 +381,9 @@ impl RolloutUdf {
                 let mut policy = match ctx.policy.instantiate() {
                     Ok(p) => p,
                     Err(e) => {
+                        let (text, source) = env.bundle().task.instruction(protocol.instruction_source);
                         let s = EpisodeSummary::failed_to_start(
-                            env.bundle().task.instruction.clone(),
+                            (text.to_string(), source),
                             EpisodeError { kind: "policy", message: e.to_string() },
                         );
                         return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
@@ -390,7 +403,10 @@ impl RolloutUdf {
                     .cloned()
                     .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
                     .unwrap_or_else(|| "panic".into());
-                let s = EpisodeSummary::failed_to_start(String::new(), EpisodeError { kind: "internal", message: msg });
+                let s = EpisodeSummary::failed_to_start(
+                    (String::new(), ""),
+                    EpisodeError { kind: "internal", message: msg },
+                );
                 (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s)
             }
         };

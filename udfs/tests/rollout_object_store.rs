@@ -11,7 +11,7 @@ use indicatif::ProgressBar;
 use libero_policies::PolicySpec;
 use libero_schema::{Suite, tables};
 use libero_sim::bundle::BundleSet;
-use libero_udfs::rollout::{RolloutContext, rollout_udf};
+use libero_udfs::rollout::{RolloutContext, RunProtocol, rollout_udf};
 use libero_udfs::run_store::RunStore;
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -22,13 +22,11 @@ async fn episodes_written_to_an_object_store_url_are_listed_and_queryable() {
     let bundles = Arc::new(BundleSet::open(&root).unwrap_or_else(|e| panic!("{e}\nrun ./setup.sh first")));
     let store = RunStore::open("memory:///run-under-test/").unwrap();
     assert_eq!(store.base_url().scheme(), "memory");
-    let max_steps = BTreeMap::from([(Suite::LiberoObject, 5)]);
+    let max_steps = BTreeMap::from([(Suite::LIBERO_OBJECT, 5)]);
     let ctx = Arc::new(RolloutContext::new(
         bundles,
         PolicySpec::Lift,
-        max_steps,
-        2,
-        false,
+        RunProtocol { max_steps, num_steps_wait: 2, stop_on_success: false, instruction_source: Default::default() },
         "test".into(),
         "{}".into(),
         store.clone(),

@@ -147,6 +147,7 @@ impl Page {
         section_failures(&mut body, runs);
         section_videos(&mut body, subject, out, embed_limit);
         section_smoke(&mut body, subject, out);
+        section_robustness(&mut body, runs);
         section_published(&mut body, runs);
         section_provenance(&mut body, runs);
 
@@ -422,6 +423,66 @@ fn section_smoke(body: &mut String, subject: &RunTables, out: &Path) {
     }
 }
 
+/// LIBERO-PRO beside the base suites: the brief's question (which suite generalises, which is
+/// memorised) in one table per run, then every cell with its interval.
+fn section_robustness(body: &mut String, runs: &[RunTables]) {
+    if runs.iter().all(|r| r.robustness.is_empty()) {
+        return;
+    }
+    body.push_str(
+        "<h2 id=robustness>Is the number real? LIBERO-PRO beside the base suites</h2><p class=muted>\
+         queries/robustness.sql and robustness_summary.sql. Per base suite its rate and each perturbation's; \
+         the mean drop over the perturbations run, the worst, and the rank of the suite that falls most. \
+         <code>lan</code> is compared pair by pair (same scene and init state as the base), the others \
+         unpaired; the LIBERO-PRO total is the plain mean of the suite × perturbation cells, as the \
+         authors compute theirs.</p>",
+    );
+    for r in runs.iter().filter(|r| !r.robustness.is_empty()) {
+        let _ = write!(body, "<h3>{} <span class=muted>({})</span></h3>", esc(&r.manifest.policy), esc(&r.location));
+        let summary = Rows::of(&r.robustness_summary).rows;
+        table(
+            body,
+            "robustness-summary",
+            &summary,
+            &[
+                ("base_suite", "suite"),
+                ("base", "base"),
+                ("swap", "swap (position)"),
+                ("object", "object"),
+                ("lan", "lan (semantic)"),
+                ("task", "task"),
+                ("env", "env"),
+                ("mean_drop", "mean drop"),
+                ("worst_perturbation", "worst"),
+                ("falls_most_rank", "falls most (rank)"),
+                ("libero_pro_total", "LIBERO-PRO total"),
+                ("n_cells", "cells"),
+                ("note", "note"),
+            ],
+        );
+        table(
+            body,
+            "robustness",
+            &Rows::of(&r.robustness).rows,
+            &[
+                ("base_suite", "suite"),
+                ("perturbation", "perturbation"),
+                ("n_total", "n"),
+                ("success_rate", "rate"),
+                ("ci_lo", "ci_lo"),
+                ("ci_hi", "ci_hi"),
+                ("base_rate", "base rate (same tasks)"),
+                ("drop_from_base", "drop"),
+                ("drop_ci_lo", "drop 95% lo"),
+                ("drop_ci_hi", "drop 95% hi"),
+                ("paired", "paired"),
+                ("instruction_changed", "instruction changed"),
+                ("published", "LIBERO-PRO leaderboard"),
+            ],
+        );
+    }
+}
+
 fn section_published(body: &mut String, runs: &[RunTables]) {
     body.push_str(
         "<h2 id=comparison>Beside the published numbers</h2><p class=muted>data/published_libero.csv (queries/published_comparison.sql). \
@@ -490,7 +551,14 @@ fn table(body: &mut String, id: &str, rows: &[BTreeMap<String, String>], columns
         body.push_str("<tr>");
         for (k, _) in columns {
             let v = get(r, k);
-            let is_rate = k.contains("rate") || k.starts_with("ci_") || k.starts_with("share");
+            let is_rate = k.contains("rate")
+                || k.starts_with("ci_")
+                || k.starts_with("share")
+                || k.contains("drop")
+                || matches!(
+                    *k,
+                    "base" | "swap" | "object" | "lan" | "task" | "env" | "libero_pro_total" | "instruction_changed"
+                );
             match v.parse::<f64>() {
                 Ok(x) if is_rate => {
                     let _ = write!(body, "<td class=n>{}</td>", pct(x));

@@ -18,15 +18,38 @@ pub enum PolicySpec {
     NanAt(u32),
     /// Diagnostic: the expert forced to let go early in its first carry (real `dropped` failures).
     ExpertDrop,
-    /// A TorchScript module with its `model.json` manifest (`torchscript:<file>[?batch=N]`;
+    /// A TorchScript module with its `model.json` manifest (`torchscript:<file>[?batch=N[&wait_ms=W]]`;
     /// with `batch`, the rollout workers' queries share forwards of up to N episodes).
-    TorchScript { file: std::path::PathBuf, batch: Option<usize> },
+    TorchScript { file: std::path::PathBuf, batch: Option<Batching> },
     /// OpenVLA in process from a Hugging Face checkpoint directory
-    /// (`openvla:<dir>[?unnorm=<key>][&batch=N]`; with `batch`, the rollout workers' queries share
-    /// forwards of up to N episodes).
-    OpenVla { dir: std::path::PathBuf, unnorm_key: Option<String>, batch: Option<usize> },
+    /// (`openvla:<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]`; with `batch`, the rollout workers'
+    /// queries share forwards of up to N episodes).
+    OpenVla { dir: std::path::PathBuf, unnorm_key: Option<String>, batch: Option<Batching> },
     /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`).
     Openpi { url: String, replan_steps: usize },
+}
+
+/// How a model policy's forwards are shared between the rollout workers (`batch=N[&wait_ms=W]`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Batching {
+    /// Most episodes in one forward.
+    pub max_episodes: usize,
+    /// How long a forward waits for more workers' queries once the first has arrived. The default
+    /// covers a physics step and a render on a GPU box; a loaded CPU box (or a slow renderer) may
+    /// need more for the forwards to fill, which `run`'s batch summary shows.
+    pub wait_ms: u64,
+}
+
+impl Batching {
+    pub const DEFAULT_WAIT_MS: u64 = 20;
+
+    fn options(&self) -> Vec<String> {
+        let mut o = vec![format!("batch={}", self.max_episodes)];
+        if self.wait_ms != Self::DEFAULT_WAIT_MS {
+            o.push(format!("wait_ms={}", self.wait_ms));
+        }
+        o
+    }
 }
 
 impl PolicySpec {
@@ -70,11 +93,11 @@ impl PolicySpec {
             .identity()),
             #[cfg(feature = "torch")]
             PolicySpec::TorchScript { file, batch } => {
-                Ok(crate::torchscript::TorchScriptModel::load(file)?.identity(*batch))
+                Ok(crate::torchscript::TorchScriptModel::load(file)?.identity(batch.map(|b| b.max_episodes)))
             }
             #[cfg(feature = "torch")]
             PolicySpec::OpenVla { dir, unnorm_key, batch } => {
-                crate::openvla::OpenVlaPolicy::identity_of(dir, unnorm_key.as_deref(), *batch)
+                crate::openvla::OpenVlaPolicy::identity_of(dir, unnorm_key.as_deref(), batch.map(|b| b.max_episodes))
             }
             _ => Ok(self.identity()),
         }
@@ -101,7 +124,7 @@ impl PolicySpec {
             }
             PolicySpec::OpenVla { dir, unnorm_key, batch } => serde_json::json!({
                 "kind": "openvla", "checkpoint": dir.display().to_string(), "unnorm_key": unnorm_key,
-                "batch": batch,
+                "batch": batch.map(|b| b.max_episodes),
                 "checkpoint_sha256": "read at run start (resolve_identity)",
             }),
             PolicySpec::TorchScript { file, .. } => serde_json::json!({
@@ -130,18 +153,17 @@ impl fmt::Display for PolicySpec {
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
             PolicySpec::ExpertDrop => f.write_str("expert-drop"),
             PolicySpec::OpenVla { dir, unnorm_key, batch } => {
-                let options: Vec<String> =
-                    [unnorm_key.as_ref().map(|k| format!("unnorm={k}")), batch.map(|b| format!("batch={b}"))]
-                        .into_iter()
-                        .flatten()
-                        .collect();
+                let mut options: Vec<String> = unnorm_key.iter().map(|k| format!("unnorm={k}")).collect();
+                options.extend(batch.iter().flat_map(Batching::options));
                 match options.is_empty() {
                     true => write!(f, "openvla:{}", dir.display()),
                     false => write!(f, "openvla:{}?{}", dir.display(), options.join("&")),
                 }
             }
             PolicySpec::TorchScript { file, batch: None } => write!(f, "torchscript:{}", file.display()),
-            PolicySpec::TorchScript { file, batch: Some(b) } => write!(f, "torchscript:{}?batch={b}", file.display()),
+            PolicySpec::TorchScript { file, batch: Some(b) } => {
+                write!(f, "torchscript:{}?{}", file.display(), b.options().join("&"))
+            }
             PolicySpec::Openpi { url, replan_steps } if *replan_steps == LIBERO_REPLAN_STEPS => {
                 write!(f, "openpi:{url}")
             }
@@ -178,19 +200,23 @@ impl FromStr for PolicySpec {
 #[cfg(feature = "torch")]
 fn batched<M: crate::batching::BatchModel>(
     spec: &str,
-    max_batch: usize,
+    batching: Batching,
     policy: &str,
     load: impl FnOnce() -> Result<M, PolicyError>,
 ) -> Result<Box<dyn Policy>, PolicyError> {
     use crate::batching::{BatchedPolicy, shared_batcher};
-    // Wait briefly for the other workers' queries: they arrive within a physics step.
-    let batcher = shared_batcher(spec, || Ok((load()?, max_batch, std::time::Duration::from_millis(20))))?;
+    let wait = std::time::Duration::from_millis(batching.wait_ms);
+    let batcher = shared_batcher(spec, || Ok((load()?, batching.max_episodes, wait)))?;
     let replan = batcher.replan_steps();
     Ok(Box::new(BatchedPolicy::new(batcher, replan, policy)))
 }
 
 #[cfg(feature = "torch")]
-fn load_torchscript(file: &std::path::Path, batch: Option<usize>, spec: &str) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_torchscript(
+    file: &std::path::Path,
+    batch: Option<Batching>,
+    spec: &str,
+) -> Result<Box<dyn Policy>, PolicyError> {
     use crate::torchscript::{TorchScriptModel, TorchScriptPolicy};
     match batch {
         None => Ok(Box::new(TorchScriptPolicy::load(file)?)),
@@ -202,7 +228,7 @@ fn load_torchscript(file: &std::path::Path, batch: Option<usize>, spec: &str) ->
 fn load_openvla(
     dir: &std::path::Path,
     unnorm_key: Option<String>,
-    batch: Option<usize>,
+    batch: Option<Batching>,
     spec: &str,
 ) -> Result<Box<dyn Policy>, PolicyError> {
     use crate::openvla::{OpenVlaBatchModel, OpenVlaPolicy};
@@ -216,7 +242,7 @@ fn load_openvla(
 fn load_openvla(
     _: &std::path::Path,
     _: Option<String>,
-    _: Option<usize>,
+    _: Option<Batching>,
     _: &str,
 ) -> Result<Box<dyn Policy>, PolicyError> {
     Err(PolicyError {
@@ -226,51 +252,83 @@ fn load_openvla(
 }
 
 #[cfg(not(feature = "torch"))]
-fn load_torchscript(_: &std::path::Path, _: Option<usize>, _: &str) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_torchscript(_: &std::path::Path, _: Option<Batching>, _: &str) -> Result<Box<dyn Policy>, PolicyError> {
     Err(PolicyError {
         policy: "torchscript".into(),
         detail: "this build has no libtorch (built without the `torch` feature)".into(),
     })
 }
 
-/// `<dir>[?unnorm=<key>][&batch=N]` of `openvla:...` (options in any order).
-fn parse_openvla(rest: &str) -> Result<PolicySpec, String> {
-    let (dir, query) = rest.split_once('?').map_or((rest, None), |(d, q)| (d, Some(q)));
-    let (mut unnorm_key, mut batch) = (None, None);
+/// The `?a=b&c=d` options of a model policy, each given at most once and only from `known`.
+fn model_options<'a>(
+    kind: &str,
+    rest: &'a str,
+    known: &[&str],
+) -> Result<(&'a str, std::collections::BTreeMap<&'a str, &'a str>), String> {
+    let (target, query) = rest.split_once('?').map_or((rest, None), |(t, q)| (t, Some(q)));
+    let mut options = std::collections::BTreeMap::new();
     for option in query.into_iter().flat_map(|q| q.split('&')) {
         match option.split_once('=') {
-            Some(("unnorm", _)) if unnorm_key.is_some() => {
-                return Err(format!("openvla:{rest}: unnorm is given twice"));
+            Some((name, value)) if known.contains(&name) => {
+                if options.insert(name, value).is_some() {
+                    return Err(format!("{kind}:{rest}: {name} is given twice"));
+                }
             }
-            Some(("batch", _)) if batch.is_some() => return Err(format!("openvla:{rest}: batch is given twice")),
-            Some(("unnorm", k)) if !k.is_empty() => unnorm_key = Some(k.to_string()),
-            Some(("batch", n)) if n.parse::<usize>().is_ok_and(|n| n >= 1) => batch = n.parse().ok(),
             _ => {
                 return Err(format!(
-                    "openvla:{rest}: unknown option {option:?}; the options are ?unnorm=<dataset key> and \
-                     &batch=N with N >= 1 (episodes per forward)"
+                    "{kind}:{rest}: unknown option {option:?}; the options are {}",
+                    known.iter().map(|k| option_help(k)).collect::<Vec<_>>().join(", ")
                 ));
             }
         }
     }
-    Ok(PolicySpec::OpenVla { dir: dir.into(), unnorm_key, batch })
+    Ok((target, options))
 }
 
-/// `<file>[?batch=N]` of `torchscript:...`.
-fn parse_torchscript(rest: &str) -> Result<PolicySpec, String> {
-    let (file, query) = rest.split_once('?').map_or((rest, None), |(f, q)| (f, Some(q)));
-    let batch = match query {
-        None => None,
-        Some(q) => match q.strip_prefix("batch=").map(str::parse::<usize>) {
-            Some(Ok(n)) if n >= 1 => Some(n),
-            _ => {
-                return Err(format!(
-                    "torchscript:{rest}: the only option is ?batch=N with N >= 1 (episodes per forward)"
-                ));
-            }
-        },
+fn option_help(name: &str) -> &'static str {
+    match name {
+        "unnorm" => "unnorm=<dataset key>",
+        "batch" => "batch=N with N >= 1 (episodes per forward)",
+        "wait_ms" => "wait_ms=W (with batch: milliseconds a forward waits for more episodes, default 20)",
+        _ => "?",
+    }
+}
+
+/// `batch=N[&wait_ms=W]` out of a model policy's options.
+fn batching(
+    kind: &str,
+    rest: &str,
+    options: &std::collections::BTreeMap<&str, &str>,
+) -> Result<Option<Batching>, String> {
+    let bad = |name: &str| format!("{kind}:{rest}: expected {}", option_help(name));
+    let wait_ms = match options.get("wait_ms") {
+        None => Batching::DEFAULT_WAIT_MS,
+        Some(w) => w.parse::<u64>().map_err(|_| bad("wait_ms"))?,
     };
-    Ok(PolicySpec::TorchScript { file: file.into(), batch })
+    match options.get("batch") {
+        None if options.contains_key("wait_ms") => Err(format!("{kind}:{rest}: wait_ms needs batch=N")),
+        None => Ok(None),
+        Some(n) => match n.parse::<usize>() {
+            Ok(max_episodes) if max_episodes >= 1 => Ok(Some(Batching { max_episodes, wait_ms })),
+            _ => Err(bad("batch")),
+        },
+    }
+}
+
+/// `<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]` of `openvla:...` (options in any order).
+fn parse_openvla(rest: &str) -> Result<PolicySpec, String> {
+    let (dir, options) = model_options("openvla", rest, &["unnorm", "batch", "wait_ms"])?;
+    let unnorm_key = match options.get("unnorm") {
+        Some(k) if k.is_empty() => return Err(format!("openvla:{rest}: expected {}", option_help("unnorm"))),
+        k => k.map(|k| k.to_string()),
+    };
+    Ok(PolicySpec::OpenVla { dir: dir.into(), unnorm_key, batch: batching("openvla", rest, &options)? })
+}
+
+/// `<file>[?batch=N[&wait_ms=W]]` of `torchscript:...`.
+fn parse_torchscript(rest: &str) -> Result<PolicySpec, String> {
+    let (file, options) = model_options("torchscript", rest, &["batch", "wait_ms"])?;
+    Ok(PolicySpec::TorchScript { file: file.into(), batch: batching("torchscript", rest, &options)? })
 }
 
 /// `ws://host:port[?replan=N]` of `openpi:...`.
@@ -315,15 +373,22 @@ mod tests {
         let cases = [
             ("openvla:/ckpt/openvla-7b", None, None, "openvla:/ckpt/openvla-7b"),
             ("openvla:/ckpt/openvla-7b?unnorm=k", Some("k"), None, "openvla:/ckpt/openvla-7b?unnorm=k"),
-            ("openvla:/ckpt/openvla-7b?batch=8", None, Some(8), "openvla:/ckpt/openvla-7b?batch=8"),
+            ("openvla:/ckpt/openvla-7b?batch=8", None, Some((8, 20)), "openvla:/ckpt/openvla-7b?batch=8"),
             (
                 "openvla:/ckpt/openvla-7b?batch=8&unnorm=k",
                 Some("k"),
-                Some(8),
+                Some((8, 20)),
                 "openvla:/ckpt/openvla-7b?unnorm=k&batch=8",
+            ),
+            (
+                "openvla:/ckpt/openvla-7b?wait_ms=500&batch=4",
+                None,
+                Some((4, 500)),
+                "openvla:/ckpt/openvla-7b?batch=4&wait_ms=500",
             ),
         ];
         for (text, unnorm, batch, printed) in cases {
+            let batch = batch.map(|(max_episodes, wait_ms)| Batching { max_episodes, wait_ms });
             let p: PolicySpec = text.parse().unwrap();
             let expected = PolicySpec::OpenVla { dir: dir.clone(), unnorm_key: unnorm.map(str::to_string), batch };
             assert_eq!(p, expected, "{text}");
@@ -336,6 +401,10 @@ mod tests {
             ("openvla:/c?unnorm=a&unnorm=b", "twice"),
             ("openvla:/c?batch=2&batch=4", "twice"),
             ("openvla:/c?replan=4", "unknown option"),
+            ("openvla:/c?wait_ms=5", "needs batch=N"),
+            ("openvla:/c?batch=2&wait_ms=x", "wait_ms=W"),
+            ("torchscript:/m.pt?unnorm=k", "unknown option"),
+            ("torchscript:/m.pt?batch=0", "batch=N"),
         ] {
             let e = bad.parse::<PolicySpec>().unwrap_err();
             assert!(e.contains(says), "{bad}: {e}");

@@ -68,6 +68,8 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
                 gripper_contacts: &[],
                 sim_ms: 1.0,
                 policy_ms: 0.0,
+                render_ms: 0.0,
+                timing: None,
             });
         }
         let summary = EpisodeSummary {
@@ -85,6 +87,8 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
             wall_s: 1.0,
             sim_s: 1.0,
             policy_s: 0.0,
+            render_s: 0.0,
+            started_at: None,
         };
         let ctx = EpisodeContext { policy, run_config: policy, protocol: &protocol };
         let ep = episode_batch(&key, &summary, &ctx, None).unwrap();

@@ -385,6 +385,8 @@ fn synthetic_run() -> PathBuf {
                 gripper_contacts: &[],
                 sim_ms: 1.0,
                 policy_ms: 0.0,
+                render_ms: 0.0,
+                timing: None,
             });
         }
         let summary = EpisodeSummary {
@@ -401,6 +403,8 @@ fn synthetic_run() -> PathBuf {
             wall_s: 1.0,
             sim_s: 1.0,
             policy_s: 0.0,
+            render_s: 0.0,
+            started_at: None,
         };
         let ctx = EpisodeContext { policy: "synthetic", run_config: "test", protocol: &protocol };
         let ep = episode_batch(&key, &summary, &ctx, None).unwrap();

@@ -159,6 +159,8 @@ fn run() -> PathBuf {
                     gripper_contacts: &s.contacts,
                     sim_ms: 1.0,
                     policy_ms: 0.0,
+                    render_ms: 0.0,
+                    timing: None,
                 });
             }
             let summary = EpisodeSummary {
@@ -176,6 +178,8 @@ fn run() -> PathBuf {
                 wall_s: 1.0,
                 sim_s: 1.0,
                 policy_s: 0.0,
+                render_s: 0.0,
+                started_at: None,
             };
             let ctx = EpisodeContext { policy: "constructed", run_config: "constructed", protocol: &protocol };
             write_episode_parts(&dir, &key, steps, &episode_batch(&key, &summary, &ctx, None).unwrap());

@@ -3,6 +3,9 @@
 //! - each `pipeline run` invocation that ran episodes: episodes, wall time, episodes/s, workers,
 //!   peak RSS and task-model compiles (from `RUN/sessions/*.json`, which the run writes);
 //! - files per table (`steps/`, `episodes/`);
+//! - where a policy step's time goes (render, policy: queue / preparation / forward, env step),
+//!   the episodes per hour, the model's busy fraction and the projected wall time of the canonical
+//!   protocol, from the timings stored with every step (`queries/step_timing.sql`);
 //! - wall time of re-scoring as a user does it: `pipeline results` under each success definition,
 //!   with and without a shorter cap, and `pipeline report` without videos, each a fresh process
 //!   (median of `--repeats`).
@@ -24,6 +27,9 @@ pub struct RunArgs {
     /// The shorter cap (policy steps) of the capped re-scorings.
     #[arg(long, default_value_t = 100)]
     cap: u32,
+    /// Only the run's own figures (invocations, files, step timing), no re-scoring.
+    #[arg(long)]
+    no_rescoring: bool,
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
@@ -67,6 +73,10 @@ pub fn run(args: RunArgs) -> Result<()> {
     for (table, n) in &files {
         println!("files in {table}/: {n}");
     }
+    print_step_timing(&runtime, &args.run)?;
+    if args.no_rescoring {
+        return Ok(());
+    }
     let exe = std::env::current_exe()?;
     let out = std::env::temp_dir().join(format!("libero-bench-run-{}", std::process::id()));
     let cap = args.cap.to_string();
@@ -96,5 +106,61 @@ pub fn run(args: RunArgs) -> Result<()> {
         println!("  {what:<32} {:>7.2} s", times[times.len() / 2]);
     }
     let _ = std::fs::remove_dir_all(&out);
+    Ok(())
+}
+
+/// `queries/step_timing.sql` over the run, as labelled lines (one row: the run's figures).
+fn print_step_timing(runtime: &tokio::runtime::Runtime, run: &str) -> Result<()> {
+    use arrow::array::{Array, AsArray};
+    use arrow::datatypes::Float64Type;
+    let batches = runtime.block_on(async {
+        let (ctx, _) = crate::session::open(run, crate::session::SuccessDefinition::AnyStep, None).await?;
+        crate::session::queries::run(&ctx, crate::session::queries::STEP_TIMING).await
+    })?;
+    let Some(batch) = batches.iter().find(|b| b.num_rows() > 0) else { return Ok(()) };
+    let value = |name: &str| -> Option<f64> {
+        let column = arrow::compute::cast(batch.column_by_name(name)?, &arrow::datatypes::DataType::Float64).ok()?;
+        let column = column.as_primitive::<Float64Type>();
+        (!column.is_null(0)).then(|| column.value(0))
+    };
+    let show = |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
+    println!("where the time goes (queries/step_timing.sql; stored per-step timings):");
+    let Some(span) = value("span_s") else {
+        println!("  (no timings: the run predates tables v5)");
+        return Ok(());
+    };
+    println!(
+        "  {} episodes, {} policy steps over {span:.1} s: {} episodes/h, {} policy steps/s",
+        show(value("episodes"), 0),
+        show(value("policy_steps"), 0),
+        show(value("episodes_per_hour"), 0),
+        show(value("policy_steps_per_s"), 1)
+    );
+    println!(
+        "  per policy step, one worker (ms): render {}, policy {} (queue {}, preparation {}, forward {}, other {}), env step {}",
+        show(value("render_ms"), 2),
+        show(value("policy_ms"), 2),
+        show(value("queue_ms"), 2),
+        show(value("prepare_ms"), 2),
+        show(value("forward_ms"), 2),
+        show(value("policy_other_ms"), 2),
+        show(value("sim_ms"), 2)
+    );
+    if value("forwards").unwrap_or(0.0) > 0.0 {
+        println!(
+            "  model: {} forwards, {} episodes per forward (at most {}), {} ms per forward + {} ms preparation; busy {}% of the span",
+            show(value("forwards"), 0),
+            show(value("episodes_per_forward"), 1),
+            show(value("max_episodes_per_forward"), 0),
+            show(value("forward_ms_mean"), 1),
+            show(value("prepare_ms_mean"), 1),
+            show(value("model_busy_fraction").map(|f| f * 100.0), 1)
+        );
+    }
+    println!(
+        "  canonical protocol at the caps (660,000 policy steps) at this rate: {} h on one such machine, {} h on 8 (linear scaling assumed)",
+        show(value("canonical_hours_1_replica"), 2),
+        show(value("canonical_hours_8_replicas"), 2)
+    );
     Ok(())
 }

@@ -84,6 +84,7 @@ pub mod queries {
     pub const PUBLISHED_COMPARISON: &str = "published_comparison";
     pub const ROBUSTNESS: &str = "robustness";
     pub const ROBUSTNESS_SUMMARY: &str = "robustness_summary";
+    pub const STEP_TIMING: &str = "step_timing";
 
     const COMPILED: &[(&str, &str)] = &[
         (SCORE, include_str!("../../queries/score.sql")),
@@ -100,6 +101,7 @@ pub mod queries {
         (PUBLISHED_COMPARISON, include_str!("../../queries/published_comparison.sql")),
         (ROBUSTNESS, include_str!("../../queries/robustness.sql")),
         (ROBUSTNESS_SUMMARY, include_str!("../../queries/robustness_summary.sql")),
+        (STEP_TIMING, include_str!("../../queries/step_timing.sql")),
     ];
 
     /// The text of `queries/<name>.sql`: from `$LIBERO_QUERIES` when set, else compiled in.

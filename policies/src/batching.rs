@@ -9,10 +9,10 @@
 //! with a batch of one (a batch changes the arithmetic only where the model's kernels do).
 
 use crate::chunking::ActionChunker;
-use crate::{Action, Observation, Policy, PolicyError};
+use crate::{ActTiming, Action, Observation, Policy, PolicyError};
 use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Mutex};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// A model that predicts an action chunk for each of several (instruction, observation) pairs
 /// in one call.
@@ -26,6 +26,11 @@ pub trait BatchModel: Send + 'static {
     /// Actions of each chunk executed before the episode's next query.
     fn replan_steps(&self) -> usize {
         1
+    }
+    /// Of the last `predict_batch`'s wall time, the part spent preparing its inputs on the host
+    /// (None: not timed apart from the forward).
+    fn last_prepare_ms(&self) -> Option<f32> {
+        None
     }
 }
 
@@ -58,7 +63,9 @@ pub fn shared_batcher_stats() -> Vec<(String, BatchStats)> {
     stats
 }
 
-type Reply = Sender<Result<Vec<Action>, String>>;
+type Reply = Sender<(Result<Vec<Action>, String>, ActTiming)>;
+/// A worker's query: instruction, observation, when it was sent, where to answer.
+type Query = (String, Observation, Instant, Reply);
 
 /// Batch sizes the batcher has run, for tests and benchmarks.
 #[derive(Debug, Default, Clone)]
@@ -79,7 +86,7 @@ impl BatchStats {
 
 /// The thread that owns the model and answers batches.
 pub struct Batcher {
-    queue: Mutex<Sender<(String, Observation, Reply)>>,
+    queue: Mutex<Sender<Query>>,
     camera_size: Option<u32>,
     replan_steps: usize,
     stats: Arc<Mutex<BatchStats>>,
@@ -88,12 +95,13 @@ pub struct Batcher {
 impl Batcher {
     /// Start the batching thread for `model`.
     pub fn start(mut model: impl BatchModel, max_batch: usize, max_wait: Duration) -> Arc<Batcher> {
-        let (tx, rx): (Sender<(String, Observation, Reply)>, Receiver<_>) = channel();
+        let (tx, rx): (Sender<Query>, Receiver<_>) = channel();
         let stats = Arc::new(Mutex::new(BatchStats::default()));
         let (camera_size, replan_steps) = (model.camera_size(), model.replan_steps());
         let thread_stats = stats.clone();
         std::thread::spawn(move || {
             // Ends when every sender (every policy and the batcher itself) is gone.
+            let mut forward_id = 0u64;
             while let Ok(first) = rx.recv() {
                 let mut pending = vec![first];
                 let deadline = std::time::Instant::now() + max_wait;
@@ -105,7 +113,8 @@ impl Batcher {
                     }
                 }
                 let requests: Vec<(String, Observation)> =
-                    pending.iter().map(|(i, o, _)| (i.clone(), o.clone())).collect();
+                    pending.iter().map(|(i, o, _, _)| (i.clone(), o.clone())).collect();
+                let started = Instant::now();
                 // A panicking model (e.g. CUDA out of memory at a large batch) answers every pending
                 // request with its message instead of silently ending the batching thread.
                 let mut answers =
@@ -124,11 +133,18 @@ impl Batcher {
                                 })
                                 .collect()
                         });
+                let total_ms = started.elapsed().as_secs_f32() * 1e3;
+                let prepare_ms = model.last_prepare_ms();
+                let forward_ms = (total_ms - prepare_ms.unwrap_or(0.0)).max(0.0);
                 answers.resize_with(pending.len(), || Err("the model returned fewer answers than requests".into()));
                 thread_stats.lock().expect("stats").batches.push(pending.len());
-                for ((_, _, reply), answer) in pending.into_iter().zip(answers) {
-                    let _ = reply.send(answer);
+                let forward_batch = pending.len() as u32;
+                for ((_, _, sent, reply), answer) in pending.into_iter().zip(answers) {
+                    let queue_ms = started.saturating_duration_since(sent).as_secs_f32() * 1e3;
+                    let timing = ActTiming { queue_ms, prepare_ms, forward_ms, forward_id, forward_batch };
+                    let _ = reply.send((answer, timing));
                 }
+                forward_id += 1;
             }
         });
         Arc::new(Batcher { queue: Mutex::new(tx), camera_size, replan_steps, stats })
@@ -143,14 +159,15 @@ impl Batcher {
         self.stats.lock().expect("stats").clone()
     }
 
-    fn ask(&self, instruction: &str, obs: &Observation) -> Result<Vec<Action>, String> {
+    fn ask(&self, instruction: &str, obs: &Observation) -> Result<(Vec<Action>, ActTiming), String> {
         let (tx, rx) = channel();
         self.queue
             .lock()
             .map_err(|_| "the batcher's queue is poisoned".to_string())?
-            .send((instruction.to_string(), obs.clone(), tx))
+            .send((instruction.to_string(), obs.clone(), Instant::now(), tx))
             .map_err(|_| "the batching thread has stopped".to_string())?;
-        rx.recv().map_err(|_| "the batching thread dropped the request".to_string())?
+        let (answer, timing) = rx.recv().map_err(|_| "the batching thread dropped the request".to_string())?;
+        answer.map(|chunk| (chunk, timing))
     }
 }
 
@@ -161,6 +178,7 @@ pub struct BatchedPolicy {
     chunker: ActionChunker,
     instruction: String,
     name: String,
+    last_timing: Option<ActTiming>,
 }
 
 impl BatchedPolicy {
@@ -170,6 +188,7 @@ impl BatchedPolicy {
             chunker: ActionChunker::new(replan_steps),
             instruction: String::new(),
             name: name.into(),
+            last_timing: None,
         }
     }
 }
@@ -186,11 +205,17 @@ impl Policy for BatchedPolicy {
 
     fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
         let err = |detail: String| PolicyError { policy: self.name.clone(), detail };
+        self.last_timing = None;
         if self.chunker.needs_query() {
-            let chunk = self.batcher.ask(&self.instruction, obs).map_err(err)?;
+            let (chunk, timing) = self.batcher.ask(&self.instruction, obs).map_err(err)?;
+            self.last_timing = Some(timing);
             self.chunker.push_chunk(chunk).map_err(err)?;
         }
         self.chunker.next_action().ok_or_else(|| err("no action queued".into()))
+    }
+
+    fn last_timing(&self) -> Option<ActTiming> {
+        self.last_timing
     }
 }
 
@@ -229,12 +254,21 @@ mod tests {
                     p.reset("task", 0);
                     let obs = Observation { eef_pos: [w as f64, 0.0, 0.0], ..Default::default() };
                     barrier.wait();
-                    (0..4).map(|_| p.act(&obs).unwrap()).collect::<Vec<_>>()
+                    (0..4).map(|_| (p.act(&obs).unwrap(), p.last_timing())).collect::<Vec<_>>()
                 })
             })
             .collect();
         for (w, h) in handles.into_iter().enumerate() {
-            let actions = h.join().unwrap();
+            let (actions, timings): (Vec<Action>, Vec<Option<ActTiming>>) = h.join().unwrap().into_iter().unzip();
+            // A timing where the step queried the model (steps 0 and 2), naming the forward's size,
+            // which the echo wrote into the action.
+            assert!(timings[1].is_none() && timings[3].is_none(), "queued actions have no timing: {timings:?}");
+            for k in [0, 2] {
+                let t = timings[k].unwrap_or_else(|| panic!("worker {w} step {k}: no timing"));
+                assert_eq!(t.forward_batch as f32, actions[k][2], "worker {w} step {k}");
+                assert!(t.queue_ms >= 0.0 && t.forward_ms >= 0.0 && t.prepare_ms.is_none(), "{t:?}");
+            }
+            assert!(timings[2].unwrap().forward_id > timings[0].unwrap().forward_id);
             // Its own eef x; replan 2 of a chunk of 4: positions 0, 1, then a new chunk's 0, 1.
             assert!(actions.iter().all(|a| a[0] == w as f32), "worker {w}: {actions:?}");
             assert_eq!(actions.iter().map(|a| a[1]).collect::<Vec<_>>(), [0.0, 1.0, 0.0, 1.0]);

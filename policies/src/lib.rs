@@ -89,6 +89,25 @@ pub struct PolicyError {
     pub detail: String,
 }
 
+/// Where the model behind a policy's `act` spent its time, beyond the call's wall time: a batched
+/// model's query waits for its forward, which prepares the batch's inputs on the host and runs the
+/// model once for all of its episodes. Stored with each step (`steps.queue_ms` ...), so a GPU run
+/// shows whether the forward, the preparation or the waiting bounds it.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ActTiming {
+    /// From the query's arrival until its forward started (ms).
+    pub queue_ms: f32,
+    /// Host-side preparation of the forward's inputs (image preprocessing; ms, shared by the
+    /// batch); None where the model does not time it apart from its forward.
+    pub prepare_ms: Option<f32>,
+    /// The forward without the preparation (ms, shared by the batch).
+    pub forward_ms: f32,
+    /// The forward's sequence number in this process: distinct ids count the forwards.
+    pub forward_id: u64,
+    /// Episodes the forward answered.
+    pub forward_batch: u32,
+}
+
 /// A policy evaluated by the rollout. One instance serves one episode at a time.
 pub trait Policy: Send {
     /// Start an episode: the instruction and a seed derived from the episode key.
@@ -105,6 +124,11 @@ pub trait Policy: Send {
     /// policy step, so a chunked policy that still has queued actions answers `None` and the
     /// rollout skips the render (a camera pair costs far more than a physics step on a CPU).
     fn camera_size(&self) -> Option<u32> {
+        None
+    }
+    /// The model timing of the last `act`, where it queried a timed model ([`ActTiming`]); None
+    /// for an action from a queued chunk and for policies that do not time their model apart.
+    fn last_timing(&self) -> Option<ActTiming> {
         None
     }
 }

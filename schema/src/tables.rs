@@ -17,7 +17,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, LazyLock};
 
 /// Version of the step/episode/manifest layout; stored in every manifest and part.
-pub const TABLES_VERSION: u32 = 4;
+pub const TABLES_VERSION: u32 = 5;
 /// Arrow field-metadata key holding a field's documentation.
 pub const DOC_KEY: &str = "doc";
 /// Parquet key-value metadata key holding the run manifest (JSON) in every part.
@@ -118,6 +118,37 @@ pub fn steps() -> SchemaRef {
             ),
             field("sim_ms", DataType::Float32, false, "wall time of the env step (ms)"),
             field("policy_ms", DataType::Float32, false, "wall time of the policy call that produced the action (ms); 0 for wait steps"),
+            field(
+                "render_ms",
+                DataType::Float32,
+                true,
+                "wall time rendering the policy's cameras before this step (ms); 0 when it saw none; null in runs before tables v5",
+            ),
+            field(
+                "queue_ms",
+                DataType::Float32,
+                true,
+                "batched model policies: time the step's query waited for its forward to start (ms); null where the step queried no timed model (a queued chunk action, an unbatched policy)",
+            ),
+            field(
+                "prepare_ms",
+                DataType::Float32,
+                true,
+                "host-side input preparation of the forward that answered (image preprocessing; ms, shared by its batch); null where not timed apart",
+            ),
+            field(
+                "forward_ms",
+                DataType::Float32,
+                true,
+                "the model forward that answered, preparation excluded (ms, shared by its batch)",
+            ),
+            field(
+                "forward_id",
+                DataType::Int64,
+                true,
+                "sequence number of that forward in the run process: the distinct (forward_id, forward_ms) of one invocation count its forwards",
+            ),
+            field("forward_batch", DataType::Int32, true, "episodes answered by that forward"),
         ]);
         Arc::new(Schema::new(f))
     });
@@ -206,6 +237,18 @@ pub fn episodes() -> SchemaRef {
             field("wall_s", DataType::Float64, false, "episode wall time, reset to last step (s)"),
             field("sim_s", DataType::Float64, false, "time in env steps (s)"),
             field("policy_s", DataType::Float64, false, "time in policy calls (s)"),
+            field(
+                "render_s",
+                DataType::Float64,
+                true,
+                "time rendering the policy's cameras (s); null in runs before tables v5",
+            ),
+            field(
+                "started_at",
+                DataType::Float64,
+                true,
+                "Unix time the episode's reset began (s): with wall_s, the span a run's episodes covered; null in runs before tables v5",
+            ),
         ]);
         Arc::new(Schema::new(f))
     });

@@ -226,6 +226,11 @@ def save_checkpoint(model: TinyOpenVLA, out_dir: str, stats: dict, n_shards: int
         del tensors
     with open(os.path.join(out_dir, "model.safetensors.index.json"), "w") as f:
         json.dump({"metadata": {"total_size": total}, "weight_map": weight_map}, f, indent=2)
+    save_configs(model, out_dir, stats, timm_kwargs)
+
+
+def save_configs(model: TinyOpenVLA, out_dir: str, stats: dict, timm_kwargs=(DINO_KW, SIGLIP_KW)):
+    """config.json, dataset_statistics.json and preprocessor_config.json of the checkpoint (no weights)."""
     # As PretrainedConfig.to_diff_dict writes a nested config (the released config.json's text_config
     # has only what differs from LlamaConfig's defaults, e.g. no rope_theta, no rms_norm_eps when 1e-6).
     full, default = model.language_model.config.to_dict(), LlamaConfig().to_dict()

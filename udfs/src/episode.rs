@@ -79,6 +79,9 @@ pub struct EpisodeSummary {
     pub wall_s: f64,
     pub sim_s: f64,
     pub policy_s: f64,
+    pub render_s: f64,
+    /// Unix time (s) the episode's reset began; None when it could not start.
+    pub started_at: Option<f64>,
 }
 
 impl EpisodeSummary {
@@ -102,6 +105,8 @@ impl EpisodeSummary {
             wall_s: 0.0,
             sim_s: 0.0,
             policy_s: 0.0,
+            render_s: 0.0,
+            started_at: None,
         }
     }
 }
@@ -153,6 +158,8 @@ pub fn run_episode(
         wall_s: 0.0,
         sim_s: 0.0,
         policy_s: 0.0,
+        render_s: 0.0,
+        started_at: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).ok().map(|d| d.as_secs_f64()),
     };
     let mut goal = match env.reset(key.init_state_id as usize, key.seed as u64) {
         Ok(g) => g,
@@ -178,10 +185,11 @@ pub fn run_episode(
     let total = protocol.num_steps_wait + protocol.max_steps;
     for t in 0..total {
         let policy_step = t.checked_sub(protocol.num_steps_wait);
-        let mut policy_ms = 0.0f32;
+        let (mut policy_ms, mut render_ms, mut timing) = (0.0f32, 0.0f32, None);
         let action: [f32; 7] = match policy_step {
             None => WAIT_ACTION,
             Some(p) => {
+                let t0 = Instant::now();
                 let images = match policy.camera_size() {
                     None => None,
                     Some(size) => match capture(&mut cameras, env, size) {
@@ -192,6 +200,8 @@ pub fn run_episode(
                         }
                     },
                 };
+                render_ms = t0.elapsed().as_secs_f32() * 1e3;
+                summary.render_s += render_ms as f64 / 1e3;
                 let input = Observation {
                     policy_step: p,
                     eef_pos: obs.eef_pos,
@@ -206,6 +216,7 @@ pub fn run_episode(
                 let t0 = Instant::now();
                 let a = policy.act(&input);
                 policy_ms = t0.elapsed().as_secs_f32() * 1e3;
+                timing = policy.last_timing();
                 summary.policy_s += policy_ms as f64 / 1e3;
                 match a {
                     Ok(a) => a,
@@ -244,6 +255,8 @@ pub fn run_episode(
             gripper_contacts: &contacts,
             sim_ms,
             policy_ms,
+            render_ms,
+            timing,
         });
         goal = out.goal;
         if let Some(p) = policy_step {
@@ -336,6 +349,8 @@ pub fn episode_batch(
         Arc::new(Float64Array::from(vec![s.wall_s])),
         Arc::new(Float64Array::from(vec![s.sim_s])),
         Arc::new(Float64Array::from(vec![s.policy_s])),
+        Arc::new(Float64Array::from(vec![s.render_s])),
+        Arc::new(Float64Array::from(vec![s.started_at])),
     ];
     let base = tables::episodes();
     let schema = match extras {

@@ -57,6 +57,9 @@ pub struct StepRecord<'a> {
     pub gripper_contacts: &'a [usize],
     pub sim_ms: f32,
     pub policy_ms: f32,
+    pub render_ms: f32,
+    /// The model timing behind `policy_ms`, where the policy reports one.
+    pub timing: Option<libero_policies::ActTiming>,
 }
 
 /// Column buffers for one episode's steps.
@@ -79,6 +82,8 @@ pub struct StepsBatchBuilder {
     contacts_len: Vec<usize>,
     sim_ms: Vec<f32>,
     policy_ms: Vec<f32>,
+    render_ms: Vec<f32>,
+    timing: Vec<Option<libero_policies::ActTiming>>,
 }
 
 impl StepsBatchBuilder {
@@ -102,6 +107,8 @@ impl StepsBatchBuilder {
             contacts_len: vec![],
             sim_ms: vec![],
             policy_ms: vec![],
+            render_ms: vec![],
+            timing: vec![],
         }
     }
 
@@ -133,6 +140,8 @@ impl StepsBatchBuilder {
         self.contacts_len.push(r.gripper_contacts.len());
         self.sim_ms.push(r.sim_ms);
         self.policy_ms.push(r.policy_ms);
+        self.render_ms.push(r.render_ms);
+        self.timing.push(r.timing);
     }
 
     pub fn finish(self) -> Result<RecordBatch, ArrowError> {
@@ -167,6 +176,12 @@ impl StepsBatchBuilder {
             list(DataType::Utf8, Arc::new(contacts), self.contacts_len)?,
             Arc::new(Float32Array::from(self.sim_ms)),
             Arc::new(Float32Array::from(self.policy_ms)),
+            Arc::new(Float32Array::from(self.render_ms)),
+            Arc::new(self.timing.iter().map(|t| t.map(|t| t.queue_ms)).collect::<Float32Array>()),
+            Arc::new(self.timing.iter().map(|t| t.and_then(|t| t.prepare_ms)).collect::<Float32Array>()),
+            Arc::new(self.timing.iter().map(|t| t.map(|t| t.forward_ms)).collect::<Float32Array>()),
+            Arc::new(self.timing.iter().map(|t| t.map(|t| t.forward_id as i64)).collect::<Int64Array>()),
+            Arc::new(self.timing.iter().map(|t| t.map(|t| t.forward_batch as i32)).collect::<Int32Array>()),
         ];
         RecordBatch::try_new(tables::steps(), columns)
     }
@@ -221,6 +236,8 @@ mod tests {
                 gripper_contacts: if t == 1 { &[1] } else { &[] },
                 sim_ms: 1.0,
                 policy_ms: 0.0,
+                render_ms: 0.0,
+                timing: None,
             });
         }
         let batch = b.finish().unwrap();

@@ -136,19 +136,23 @@ fn env_action(p: &OpenVlaPrediction) -> Result<Action, PolicyError> {
 pub struct OpenVlaBatchModel {
     model: OpenVlaModel,
     unnorm_key: Option<String>,
+    /// The last batch's image preprocessing (ms), serial on the batching thread.
+    last_prepare_ms: Option<f32>,
 }
 
 impl OpenVlaBatchModel {
     pub fn load(dir: &Path, unnorm_key: Option<String>) -> Result<Self, PolicyError> {
         let OpenVlaPolicy { model, unnorm_key, .. } = OpenVlaPolicy::load(dir, unnorm_key)?;
-        Ok(OpenVlaBatchModel { model, unnorm_key })
+        Ok(OpenVlaBatchModel { model, unnorm_key, last_prepare_ms: None })
     }
 }
 
 impl BatchModel for OpenVlaBatchModel {
     fn predict_batch(&mut self, requests: &[(String, Observation)]) -> Vec<Result<Vec<Action>, String>> {
         // A request whose image cannot be prepared fails alone; the rest share the forward.
+        let t0 = std::time::Instant::now();
         let images: Vec<Result<RgbImage, PolicyError>> = requests.iter().map(|(_, obs)| model_image(obs)).collect();
+        self.last_prepare_ms = Some(t0.elapsed().as_secs_f32() * 1e3);
         let ready: Vec<(&RgbImage, &str)> = images
             .iter()
             .zip(requests)
@@ -177,5 +181,9 @@ impl BatchModel for OpenVlaBatchModel {
 
     fn camera_size(&self) -> Option<u32> {
         Some(RENDER_SIZE)
+    }
+
+    fn last_prepare_ms(&self) -> Option<f32> {
+        self.last_prepare_ms
     }
 }

@@ -2,9 +2,9 @@
 -- and what the measured rate means for the canonical protocol. `pipeline bench run` prints it.
 --
 -- A rollout worker's policy step is: render the cameras (render_ms), call the policy (policy_ms),
--- step the env (sim_ms). For a batched model, policy_ms is the wait for the forward to start
--- (queue_ms), the forward's host-side preparation (prepare_ms) and the forward (forward_ms), the
--- last two shared by the forward's episodes. The model's busy fraction is the time inside distinct
+-- step the env (sim_ms). For a batched model, policy_ms is the worker's preparation of its query
+-- (prepare_ms: image preprocessing), the wait for the forward to start (queue_ms) and the forward
+-- (forward_ms, shared by the forward's episodes). The model's busy fraction is the time inside distinct
 -- forwards over the span the episodes covered (episodes.started_at .. started_at + wall_s): on a
 -- GPU run, an upper bound of the GPU's busy fraction (a forward also holds host work).
 --
@@ -16,7 +16,7 @@ WITH policy_steps AS (
     SELECT * FROM steps WHERE policy_step IS NOT NULL
 ),
 forwards AS (
-    SELECT DISTINCT forward_id, forward_ms, COALESCE(prepare_ms, 0) AS prepare_ms, forward_batch
+    SELECT DISTINCT forward_id, forward_ms, forward_batch
     FROM policy_steps WHERE forward_id IS NOT NULL
 ),
 span AS (
@@ -41,8 +41,7 @@ model AS (
         AVG(forward_batch) AS episodes_per_forward,
         MAX(forward_batch) AS max_episodes_per_forward,
         AVG(forward_ms) AS forward_ms_mean,
-        AVG(prepare_ms) AS prepare_ms_mean,
-        SUM(forward_ms + prepare_ms) / 1000.0 AS model_busy_s
+        SUM(forward_ms) / 1000.0 AS model_busy_s
     FROM forwards
 )
 SELECT
@@ -63,7 +62,6 @@ SELECT
     model.episodes_per_forward,
     model.max_episodes_per_forward,
     model.forward_ms_mean,
-    model.prepare_ms_mean,
     model.model_busy_s / span.span_s AS model_busy_fraction,
     660000.0 / (per_step.policy_steps / span.span_s) / 3600.0 AS canonical_hours_1_replica,
     660000.0 / (per_step.policy_steps / span.span_s) / 3600.0 / 8.0 AS canonical_hours_8_replicas

@@ -137,23 +137,22 @@ fn print_step_timing(runtime: &tokio::runtime::Runtime, run: &str) -> Result<()>
         show(value("policy_steps_per_s"), 1)
     );
     println!(
-        "  per policy step, one worker (ms): render {}, policy {} (queue {}, preparation {}, forward {}, other {}), env step {}",
+        "  per policy step, one worker (ms): render {}, policy {} (preparation {}, queue {}, forward {}, other {}), env step {}",
         show(value("render_ms"), 2),
         show(value("policy_ms"), 2),
-        show(value("queue_ms"), 2),
         show(value("prepare_ms"), 2),
+        show(value("queue_ms"), 2),
         show(value("forward_ms"), 2),
         show(value("policy_other_ms"), 2),
         show(value("sim_ms"), 2)
     );
     if value("forwards").unwrap_or(0.0) > 0.0 {
         println!(
-            "  model: {} forwards, {} episodes per forward (at most {}), {} ms per forward + {} ms preparation; busy {}% of the span",
+            "  model: {} forwards, {} episodes per forward (at most {}), {} ms per forward; busy {}% of the span",
             show(value("forwards"), 0),
             show(value("episodes_per_forward"), 1),
             show(value("max_episodes_per_forward"), 0),
             show(value("forward_ms_mean"), 1),
-            show(value("prepare_ms_mean"), 1),
             show(value("model_busy_fraction").map(|f| f * 100.0), 1)
         );
     }

@@ -90,17 +90,17 @@ pub struct PolicyError {
 }
 
 /// Where the model behind a policy's `act` spent its time, beyond the call's wall time: a batched
-/// model's query waits for its forward, which prepares the batch's inputs on the host and runs the
-/// model once for all of its episodes. Stored with each step (`steps.queue_ms` ...), so a GPU run
-/// shows whether the forward, the preparation or the waiting bounds it.
+/// model's query is prepared on the worker (image preprocessing), then waits for its forward,
+/// which runs the model once for all of its episodes. Stored with each step (`steps.queue_ms` ...),
+/// so a GPU run shows whether the forward, the preparation or the waiting bounds it.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct ActTiming {
     /// From the query's arrival until its forward started (ms).
     pub queue_ms: f32,
-    /// Host-side preparation of the forward's inputs (image preprocessing; ms, shared by the
-    /// batch); None where the model does not time it apart from its forward.
+    /// The worker's preparation of this query's inputs (image preprocessing; ms); None where the
+    /// model prepares nothing apart from its forward.
     pub prepare_ms: Option<f32>,
-    /// The forward without the preparation (ms, shared by the batch).
+    /// The forward (ms, shared by the batch).
     pub forward_ms: f32,
     /// The forward's sequence number in this process: distinct ids count the forwards.
     pub forward_id: u64,
@@ -125,6 +125,12 @@ pub trait Policy: Send {
     /// rollout skips the render (a camera pair costs far more than a physics step on a CPU).
     fn camera_size(&self) -> Option<u32> {
         None
+    }
+    /// Whether the images must include the wrist camera (else [`CameraImages::wrist`] is empty and
+    /// the rollout renders one camera: on a GPU that also runs the model, each render waits for
+    /// the GPU, so a camera nobody looks at costs a policy step real time).
+    fn wants_wrist_camera(&self) -> bool {
+        true
     }
     /// The model timing of the last `act`, where it queried a timed model ([`ActTiming`]); None
     /// for an action from a queued chunk and for policies that do not time their model apart.

@@ -156,6 +156,10 @@ impl TorchScriptManifest {
     fn needs_images(&self) -> bool {
         self.inputs.iter().any(|i| *i != Input::State)
     }
+
+    fn needs_wrist(&self) -> bool {
+        self.inputs.contains(&Input::Wrist)
+    }
 }
 
 /// A loaded TorchScript module and its manifest: runs batches of observations.
@@ -288,8 +292,8 @@ impl TorchScriptModel {
 }
 
 impl BatchModel for TorchScriptModel {
-    fn predict_batch(&mut self, requests: &[(String, Observation)]) -> Vec<Result<Vec<Action>, String>> {
-        let observations: Vec<&Observation> = requests.iter().map(|(_, o)| o).collect();
+    fn predict_batch(&mut self, requests: &[crate::batching::Request]) -> Vec<Result<Vec<Action>, String>> {
+        let observations: Vec<&Observation> = requests.iter().map(|r| &r.obs).collect();
         match self.predict(&observations) {
             Ok(chunks) => chunks.into_iter().map(Ok).collect(),
             // A batch fails together; each episode gets the reason.
@@ -299,6 +303,10 @@ impl BatchModel for TorchScriptModel {
 
     fn camera_size(&self) -> Option<u32> {
         self.manifest.needs_images().then_some(self.manifest.render_size)
+    }
+
+    fn wants_wrist_camera(&self) -> bool {
+        self.manifest.needs_wrist()
     }
 
     fn replan_steps(&self) -> usize {
@@ -336,6 +344,10 @@ impl Policy for TorchScriptPolicy {
 
     fn camera_size(&self) -> Option<u32> {
         (self.model.manifest.needs_images() && self.chunker.needs_query()).then_some(self.model.manifest.render_size)
+    }
+
+    fn wants_wrist_camera(&self) -> bool {
+        self.model.manifest.needs_wrist()
     }
 
     fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {

@@ -134,13 +134,13 @@ pub fn steps() -> SchemaRef {
                 "prepare_ms",
                 DataType::Float32,
                 true,
-                "host-side input preparation of the forward that answered (image preprocessing; ms, shared by its batch); null where not timed apart",
+                "the worker's preparation of the step's model inputs before its query (image preprocessing; ms); null where the model prepares nothing apart",
             ),
             field(
                 "forward_ms",
                 DataType::Float32,
                 true,
-                "the model forward that answered, preparation excluded (ms, shared by its batch)",
+                "the model forward that answered (ms, shared by its batch)",
             ),
             field(
                 "forward_id",

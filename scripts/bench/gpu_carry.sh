@@ -8,7 +8,7 @@
 # usage: scripts/bench/gpu_carry.sh CARRY   (after cargo build --release and ./setup.sh)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-carry=$1; mkdir -p "$carry/lib" "$carry/gl"
+carry=$(realpath -m "$1"); mkdir -p "$carry/lib" "$carry/gl"
 target=${CARGO_TARGET_DIR:-target}
 strip -o "$carry/pipeline" "$target/release/pipeline"; xz -T0 -9 -f "$carry/pipeline"
 cp -L third_party/mujoco-3.3.7/lib/libmujoco.so.3.3.7 "$carry/lib/"

@@ -192,7 +192,7 @@ pub fn run_episode(
                 let t0 = Instant::now();
                 let images = match policy.camera_size() {
                     None => None,
-                    Some(size) => match capture(&mut cameras, env, size) {
+                    Some(size) => match capture(&mut cameras, env, size, policy.wants_wrist_camera()) {
                         Ok(images) => Some(images),
                         Err(e) => {
                             summary.error = Some(EpisodeError::from_sim(&e));
@@ -275,17 +275,18 @@ pub fn run_episode(
     (steps, summary)
 }
 
-/// Both camera images of the env's current state at `size`, (re)making the renderer when the
-/// size changes.
+/// The camera images of the env's current state at `size` (the wrist camera only when `wrist`),
+/// (re)making the renderer when the size changes.
 fn capture(
     cameras: &mut Option<PolicyCameras>,
     env: &mut LiberoEnv,
     size: u32,
+    wrist: bool,
 ) -> Result<libero_policies::CameraImages, SimError> {
     if cameras.as_ref().is_none_or(|c| c.size() != size) {
         *cameras = Some(PolicyCameras::new(env, size)?);
     }
-    cameras.as_mut().expect("just made").capture(env)
+    cameras.as_mut().expect("just made").capture(env, wrist)
 }
 
 /// Run identity stored in every episode row.

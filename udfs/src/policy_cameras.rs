@@ -43,12 +43,15 @@ impl PolicyCameras {
         self.size
     }
 
-    /// Both cameras' views of the env's current state.
-    pub fn capture(&mut self, env: &mut LiberoEnv) -> Result<CameraImages, SimError> {
+    /// The cameras' views of the env's current state: agentview, and the wrist camera when
+    /// `wrist` (else an empty image).
+    pub fn capture(&mut self, env: &mut LiberoEnv, wrist: bool) -> Result<CameraImages, SimError> {
         let mut grab = |camera: &str| -> Result<CameraImage, SimError> {
             let f = env.render(&mut self.renderer, camera, self.size, self.size)?;
             Ok(CameraImage { width: f.width, height: f.height, rgb: f.rgb })
         };
-        Ok(CameraImages { agentview: grab(AGENTVIEW)?, wrist: grab(WRIST)? })
+        let agentview = grab(AGENTVIEW)?;
+        let wrist = if wrist { grab(WRIST)? } else { CameraImage::default() };
+        Ok(CameraImages { agentview, wrist })
     }
 }

@@ -5,12 +5,13 @@
 //! `unnorm_key`, gripper [0, 1] → sign → inverted. bf16 on a GPU, fp32 on a CPU.
 
 use super::{OpenVlaModel, OpenVlaPrediction};
-use crate::batching::BatchModel;
+use crate::batching::{BatchModel, Preparer, Request};
 use crate::postprocess::Gripper;
 use crate::preprocess::{ImagePipeline, RgbImage};
 use crate::{Action, Observation, Policy, PolicyError};
 use sha2::{Digest, Sha256};
 use std::path::Path;
+use std::sync::Arc;
 use tch::{Device, Kind};
 
 const NAME: &str = "openvla";
@@ -103,6 +104,11 @@ impl Policy for OpenVlaPolicy {
         Some(RENDER_SIZE)
     }
 
+    /// OpenVLA sees the agentview camera only.
+    fn wants_wrist_camera(&self) -> bool {
+        false
+    }
+
     fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
         let image = model_image(obs)?;
         let p = self
@@ -136,27 +142,32 @@ fn env_action(p: &OpenVlaPrediction) -> Result<Action, PolicyError> {
 pub struct OpenVlaBatchModel {
     model: OpenVlaModel,
     unnorm_key: Option<String>,
-    /// The last batch's image preprocessing (ms), serial on the batching thread.
-    last_prepare_ms: Option<f32>,
 }
 
 impl OpenVlaBatchModel {
     pub fn load(dir: &Path, unnorm_key: Option<String>) -> Result<Self, PolicyError> {
         let OpenVlaPolicy { model, unnorm_key, .. } = OpenVlaPolicy::load(dir, unnorm_key)?;
-        Ok(OpenVlaBatchModel { model, unnorm_key, last_prepare_ms: None })
+        Ok(OpenVlaBatchModel { model, unnorm_key })
     }
 }
 
 impl BatchModel for OpenVlaBatchModel {
-    fn predict_batch(&mut self, requests: &[(String, Observation)]) -> Vec<Result<Vec<Action>, String>> {
-        // A request whose image cannot be prepared fails alone; the rest share the forward.
-        let t0 = std::time::Instant::now();
-        let images: Vec<Result<RgbImage, PolicyError>> = requests.iter().map(|(_, obs)| model_image(obs)).collect();
-        self.last_prepare_ms = Some(t0.elapsed().as_secs_f32() * 1e3);
+    fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {
+        // Each worker prepared its image ([`Self::preparer`]); a request whose image could not be
+        // prepared fails alone, the rest share the forward.
+        let images: Vec<Result<&RgbImage, String>> = requests
+            .iter()
+            .map(|r| {
+                r.prepared
+                    .as_ref()
+                    .and_then(|p| p.downcast_ref::<RgbImage>())
+                    .ok_or_else(|| "the worker sent no prepared image".to_string())
+            })
+            .collect();
         let ready: Vec<(&RgbImage, &str)> = images
             .iter()
             .zip(requests)
-            .filter_map(|(image, (instruction, _))| image.as_ref().ok().map(|i| (i, instruction.as_str())))
+            .filter_map(|(image, r)| image.as_ref().ok().map(|i| (*i, r.instruction.as_str())))
             .collect();
         let mut predictions = match self.model.predict_actions(&ready, self.unnorm_key.as_deref()) {
             Ok(p) => p.into_iter(),
@@ -183,7 +194,14 @@ impl BatchModel for OpenVlaBatchModel {
         Some(RENDER_SIZE)
     }
 
-    fn last_prepare_ms(&self) -> Option<f32> {
-        self.last_prepare_ms
+    /// OpenVLA sees the agentview camera only.
+    fn wants_wrist_camera(&self) -> bool {
+        false
+    }
+
+    fn preparer(&self) -> Option<Preparer> {
+        Some(Arc::new(|obs: &Observation| {
+            model_image(obs).map(|i| Box::new(i) as Box<dyn std::any::Any + Send>).map_err(|e| e.to_string())
+        }))
     }
 }

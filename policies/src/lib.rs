@@ -126,6 +126,9 @@ pub trait Policy: Send {
     fn camera_size(&self) -> Option<u32> {
         None
     }
+    /// The episode ended (success, cap or error): called after every episode the policy was reset
+    /// for, and harmless without one. A batched model stops waiting for this worker's queries.
+    fn end_episode(&mut self) {}
     /// Whether the images must include the wrist camera (else [`CameraImages::wrist`] is empty and
     /// the rollout renders one camera: on a GPU that also runs the model, each render waits for
     /// the GPU, so a camera nobody looks at costs a policy step real time).

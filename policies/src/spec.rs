@@ -34,14 +34,15 @@ pub enum PolicySpec {
 pub struct Batching {
     /// Most episodes in one forward.
     pub max_episodes: usize,
-    /// How long a forward waits for more workers' queries once the first has arrived. The default
-    /// covers a physics step and a render on a GPU box; a loaded CPU box (or a slow renderer) may
-    /// need more for the forwards to fill, which `run`'s batch summary shows.
+    /// The longest a forward waits, once a query has arrived, for the other episodes in progress
+    /// to send theirs (it goes as soon as all have). The default covers a render and an env step
+    /// of a straggler on a GPU box; a loaded CPU box may need more for the forwards to fill, which
+    /// `run`'s batch summary shows.
     pub wait_ms: u64,
 }
 
 impl Batching {
-    pub const DEFAULT_WAIT_MS: u64 = 20;
+    pub const DEFAULT_WAIT_MS: u64 = 200;
 
     fn options(&self) -> Vec<String> {
         let mut o = vec![format!("batch={}", self.max_episodes)];
@@ -289,7 +290,9 @@ fn option_help(name: &str) -> &'static str {
     match name {
         "unnorm" => "unnorm=<dataset key>",
         "batch" => "batch=N with N >= 1 (episodes per forward)",
-        "wait_ms" => "wait_ms=W (with batch: milliseconds a forward waits for more episodes, default 20)",
+        "wait_ms" => {
+            "wait_ms=W (with batch: most milliseconds a forward waits for an episode in progress, default 200)"
+        }
         _ => "?",
     }
 }
@@ -373,11 +376,11 @@ mod tests {
         let cases = [
             ("openvla:/ckpt/openvla-7b", None, None, "openvla:/ckpt/openvla-7b"),
             ("openvla:/ckpt/openvla-7b?unnorm=k", Some("k"), None, "openvla:/ckpt/openvla-7b?unnorm=k"),
-            ("openvla:/ckpt/openvla-7b?batch=8", None, Some((8, 20)), "openvla:/ckpt/openvla-7b?batch=8"),
+            ("openvla:/ckpt/openvla-7b?batch=8", None, Some((8, 200)), "openvla:/ckpt/openvla-7b?batch=8"),
             (
                 "openvla:/ckpt/openvla-7b?batch=8&unnorm=k",
                 Some("k"),
-                Some((8, 20)),
+                Some((8, 200)),
                 "openvla:/ckpt/openvla-7b?unnorm=k&batch=8",
             ),
             (

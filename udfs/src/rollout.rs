@@ -390,6 +390,7 @@ impl RolloutUdf {
                     }
                 };
                 let (steps, summary) = run_episode(env, policy.as_mut(), key, &protocol, policy_seed(key));
+                policy.end_episode();
                 (steps.finish(), summary)
             })
         };

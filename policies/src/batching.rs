@@ -7,11 +7,13 @@
 //! `max_batch`, and at most `max_wait` for a straggler), answers them with one `predict_batch`
 //! call, and routes each chunk back to its worker.
 //!
-//! Waiting for every episode in progress, not for a fixed window, is what keeps the forwards full
-//! on a GPU: with a short window the workers split into groups that alternate, one group's
-//! renders waiting on the GPU while the other's forward runs (measured on the H100: forwards of
-//! 16 of 32 episodes, renders of 300 ms instead of 4). The batcher knows the episodes in progress
-//! from [`Policy::reset`] and [`Policy::end_episode`], so the last episodes of a run do not wait. With N workers the batch is up to N episodes, and an episode's actions are the same as
+//! The batcher knows the episodes in progress from [`Policy::reset`] and [`Policy::end_episode`]:
+//! a forward goes as soon as every one has sent its query, and the last episodes of a run never
+//! wait for workers that have none. How long to wait for a straggler is a trade measured on the
+//! H100 (`data/benchmarks/gpu-end-to-end-h100-2026-11-24`): with a short wait the workers split
+//! into groups that alternate, one group's renders waiting on the GPU while the other's forward
+//! runs; with a long one the forwards fill but all workers render at once, and 32 GL contexts
+//! rendering together are slower still. The renderer, not the forward, is the next limit. With N workers the batch is up to N episodes, and an episode's actions are the same as
 //! with a batch of one (a batch changes the arithmetic only where the model's kernels do).
 
 use crate::chunking::ActionChunker;

@@ -35,14 +35,16 @@ pub struct Batching {
     /// Most episodes in one forward.
     pub max_episodes: usize,
     /// The longest a forward waits, once a query has arrived, for the other episodes in progress
-    /// to send theirs (it goes as soon as all have). The default covers a render and an env step
-    /// of a straggler on a GPU box; a loaded CPU box may need more for the forwards to fill, which
-    /// `run`'s batch summary shows.
+    /// to send theirs (it goes as soon as all have). Short by default: on the H100 a 200 ms wait
+    /// filled the forwards (15 episodes each instead of 10) but put all 32 workers' renders at
+    /// the same moment, and renders from 32 GL contexts at once took 505 ms instead of 305: 24.1
+    /// policy steps/s against 27.1 (`data/benchmarks/gpu-end-to-end-h100-2026-11-24`). A loaded
+    /// CPU box may need more for the forwards to fill, which `run`'s batch summary shows.
     pub wait_ms: u64,
 }
 
 impl Batching {
-    pub const DEFAULT_WAIT_MS: u64 = 200;
+    pub const DEFAULT_WAIT_MS: u64 = 20;
 
     fn options(&self) -> Vec<String> {
         let mut o = vec![format!("batch={}", self.max_episodes)];
@@ -291,7 +293,7 @@ fn option_help(name: &str) -> &'static str {
         "unnorm" => "unnorm=<dataset key>",
         "batch" => "batch=N with N >= 1 (episodes per forward)",
         "wait_ms" => {
-            "wait_ms=W (with batch: most milliseconds a forward waits for an episode in progress, default 200)"
+            "wait_ms=W (with batch: most milliseconds a forward waits for an episode in progress, default 20)"
         }
         _ => "?",
     }
@@ -376,11 +378,11 @@ mod tests {
         let cases = [
             ("openvla:/ckpt/openvla-7b", None, None, "openvla:/ckpt/openvla-7b"),
             ("openvla:/ckpt/openvla-7b?unnorm=k", Some("k"), None, "openvla:/ckpt/openvla-7b?unnorm=k"),
-            ("openvla:/ckpt/openvla-7b?batch=8", None, Some((8, 200)), "openvla:/ckpt/openvla-7b?batch=8"),
+            ("openvla:/ckpt/openvla-7b?batch=8", None, Some((8, 20)), "openvla:/ckpt/openvla-7b?batch=8"),
             (
                 "openvla:/ckpt/openvla-7b?batch=8&unnorm=k",
                 Some("k"),
-                Some((8, 200)),
+                Some((8, 20)),
                 "openvla:/ckpt/openvla-7b?unnorm=k&batch=8",
             ),
             (

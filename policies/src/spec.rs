@@ -292,9 +292,7 @@ fn option_help(name: &str) -> &'static str {
     match name {
         "unnorm" => "unnorm=<dataset key>",
         "batch" => "batch=N with N >= 1 (episodes per forward)",
-        "wait_ms" => {
-            "wait_ms=W (with batch: most milliseconds a forward waits for an episode in progress, default 20)"
-        }
+        "wait_ms" => "wait_ms=W (with batch: most milliseconds a forward waits for an episode in progress, default 20)",
         _ => "?",
     }
 }
@@ -324,7 +322,7 @@ fn batching(
 fn parse_openvla(rest: &str) -> Result<PolicySpec, String> {
     let (dir, options) = model_options("openvla", rest, &["unnorm", "batch", "wait_ms"])?;
     let unnorm_key = match options.get("unnorm") {
-        Some(k) if k.is_empty() => return Err(format!("openvla:{rest}: expected {}", option_help("unnorm"))),
+        Some(&"") => return Err(format!("openvla:{rest}: expected {}", option_help("unnorm"))),
         k => k.map(|k| k.to_string()),
     };
     Ok(PolicySpec::OpenVla { dir: dir.into(), unnorm_key, batch: batching("openvla", rest, &options)? })

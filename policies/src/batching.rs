@@ -13,8 +13,10 @@
 //! H100 (`data/benchmarks/gpu-end-to-end-h100-2026-11-24`): with a short wait the workers split
 //! into groups that alternate, one group's renders waiting on the GPU while the other's forward
 //! runs; with a long one the forwards fill but all workers render at once, and 32 GL contexts
-//! rendering together are slower still. The renderer, not the forward, is the next limit. With N workers the batch is up to N episodes, and an episode's actions are the same as
-//! with a batch of one (a batch changes the arithmetic only where the model's kernels do).
+//! rendering together are slower still. The renderer, not the forward, is the next limit.
+//!
+//! With N workers the batch is up to N episodes, and an episode's actions are the same as with a
+//! batch of one (a batch changes the arithmetic only where the model's kernels do).
 
 use crate::chunking::ActionChunker;
 use crate::{ActTiming, Action, Observation, Policy, PolicyError};

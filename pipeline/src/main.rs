@@ -9,6 +9,8 @@ mod bundles_location;
 mod compact;
 mod compare;
 mod failures;
+mod generalisation;
+mod libero_plus;
 mod media;
 mod published;
 mod report;
@@ -50,6 +52,9 @@ enum Command {
     Results(results::Args),
     /// LIBERO-PRO beside the base suites: rates, drops with intervals, the suite that falls most.
     Robustness(robustness::Args),
+    /// LIBERO-Plus scored by category: rates with Wilson intervals, drops from the base rate, the
+    /// published leaderboard beside this run (outputs/generalisation*.csv).
+    Generalisation(generalisation::Args),
     /// One primary failure mode per failed episode, and counts per suite (queries/failure_modes.sql).
     Failures(failures::Args),
     /// results.csv, per-task and failure tables and a self-contained report.html for one or more runs.
@@ -82,6 +87,7 @@ fn main() -> anyhow::Result<()> {
         Command::Run(args) => run::run(&bundles()?, args),
         Command::Results(args) => results::run(args),
         Command::Robustness(args) => robustness::run(args),
+        Command::Generalisation(args) => generalisation::run(args),
         Command::Failures(args) => failures::run(args),
         Command::Report(args) => report::run(&bundles()?, args),
         Command::Sql(args) => sql::run(args),

@@ -60,11 +60,26 @@ pub struct Args {
     /// 4000 parts and 0.2 s compacted; compacting them takes ~9 s.
     #[arg(long, default_value_t = 500)]
     compact_at: usize,
+    /// Run spec rows that perturb the camera images (camera_* columns, sensor_noise) with a policy
+    /// that sees no camera (the expert, the baselines): a control, whose rate must not change.
+    /// Without it such a run is refused, since the perturbation would mean nothing.
+    #[arg(long)]
+    allow_unseen_perturbations: bool,
 }
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
     let set = Arc::new(BundleSet::open(bundles)?);
     let specs = specs::load_specs(&args.specs, &set)?;
+    if let Some(row) = specs.first_camera_row
+        && !args.policy.sees_cameras()
+        && !args.allow_unseen_perturbations
+    {
+        bail!(
+            "spec file {}: row {row} (and maybe others) perturbs the camera images (camera_* or sensor_noise columns), but the policy {} sees no camera, so the perturbation would change nothing it acts on. Run a policy that sees (openvla:, torchscript:, openpi:), drop those columns, or pass --allow-unseen-perturbations to run it as a control.",
+            args.specs.display(),
+            args.policy.name()
+        );
+    }
     // A bundle file damaged since the set-up stops the run here, named, not in every episode.
     let tasks: BTreeSet<(Suite, u32)> =
         specs.keys.iter().filter_map(|k| Some((k.suite.parse().ok()?, k.task_id as u32))).collect();

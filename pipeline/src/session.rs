@@ -85,6 +85,8 @@ pub mod queries {
     pub const ROBUSTNESS: &str = "robustness";
     pub const ROBUSTNESS_SUMMARY: &str = "robustness_summary";
     pub const STEP_TIMING: &str = "step_timing";
+    pub const GENERALISATION: &str = "generalisation";
+    pub const GENERALISATION_SUMMARY: &str = "generalisation_summary";
 
     const COMPILED: &[(&str, &str)] = &[
         (SCORE, include_str!("../../queries/score.sql")),
@@ -102,6 +104,8 @@ pub mod queries {
         (ROBUSTNESS, include_str!("../../queries/robustness.sql")),
         (ROBUSTNESS_SUMMARY, include_str!("../../queries/robustness_summary.sql")),
         (STEP_TIMING, include_str!("../../queries/step_timing.sql")),
+        (GENERALISATION, include_str!("../../queries/generalisation.sql")),
+        (GENERALISATION_SUMMARY, include_str!("../../queries/generalisation_summary.sql")),
     ];
 
     /// The text of `queries/<name>.sql`: from `$LIBERO_QUERIES` when set, else compiled in.

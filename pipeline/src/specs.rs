@@ -4,7 +4,8 @@
 //! A spec row is one episode: `suite, task_id, init_state_id, seed` (plus any other columns,
 //! carried through to the episode rows). Validation names every offending row: missing columns,
 //! nulls, unknown suites or tasks, init states or seeds the bundles do not have, duplicate keys,
-//! and extra columns whose names collide with the stored episode columns.
+//! extra columns whose names collide with the stored episode columns, and perturbation columns
+//! ([`libero_udfs::perturbation`]) of the wrong type or out of range.
 
 use anyhow::{Context, Result, bail};
 use arrow::array::{ArrayRef, AsArray, Int32Array, Int64Array, RecordBatch, StringArray};
@@ -14,6 +15,7 @@ use libero_schema::Suite;
 use libero_schema::protocol::{SEED, TRIALS_PER_TASK};
 use libero_schema::tables::{self, SPEC_COLUMNS};
 use libero_sim::bundle::BundleSet;
+use libero_udfs::perturbation::EpisodePerturbation;
 use libero_udfs::steps_batch::EpisodeKey;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
@@ -41,9 +43,60 @@ pub struct Args {
     /// Output Parquet file.
     #[arg(short, long, default_value = "specs.parquet")]
     out: PathBuf,
+    /// Which benchmark's episodes: libero (the canonical protocol: tasks × trials × seeds) or
+    /// libero_plus (one row per LIBERO-Plus variant, init state 0, on its base task's bundle, the
+    /// perturbation in the spec's perturbation columns; --trials and --tasks do not apply).
+    #[arg(long, value_enum, default_value = "libero")]
+    benchmark: Benchmark,
+    /// libero_plus: categories to include (Camera, Robot, Language, Noise; default: all four).
+    /// Light and Background need assets only the authors' Hugging Face repository holds; Layout's
+    /// displaced-object variants need bundles not built yet: asking for them is an error that says so.
+    #[arg(long, value_delimiter = ',')]
+    categories: Vec<crate::libero_plus::Category>,
+    /// libero_plus: the instruction the policy gets: bddl (the env's BDDL text; a Language
+    /// variant's rewrite) or official-filename (LIBERO-Plus's Task.language, the file name with
+    /// the variant suffix, which OpenVLA-OFT's and openpi's loops fed their policies).
+    #[arg(long, value_enum, default_value = "bddl")]
+    instruction_mode: crate::libero_plus::InstructionMode,
+    /// libero_plus: the sensor-noise code revision: lb2025 (the PyPI wheel's, and the 2025
+    /// leaderboard's: glass blur over 224 px, fog's plasma cut at 256 px) or head (the image's size).
+    #[arg(long, default_value = "lb2025")]
+    noise_revision: String,
+    /// libero_plus: at most N variants per suite and category, evenly spaced over it (a sample).
+    #[arg(long)]
+    per_category: Option<usize>,
+    /// libero_plus: the authors' task_classification.json (GitHub only), whose difficulty levels
+    /// then fill the difficulty column (null without it).
+    #[arg(long)]
+    classification: Option<PathBuf>,
+    /// libero_plus: base rows per task (init states 0..N) in LIBERO-Plus's unperturbed env, whose
+    /// rate every category's drop is measured from (0: none; then `generalisation` has no drops).
+    #[arg(long, default_value_t = TRIALS_PER_TASK)]
+    base_trials: u32,
+}
+
+/// The benchmarks `pipeline specs` writes spec tables for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Benchmark {
+    Libero,
+    LiberoPlus,
 }
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
+    if args.benchmark == Benchmark::LiberoPlus {
+        let opts = crate::libero_plus::PlusOptions {
+            suites: &args.suites,
+            categories: (!args.categories.is_empty()).then(|| args.categories.clone()),
+            instruction_mode: args.instruction_mode,
+            noise_revision: &args.noise_revision,
+            seeds: &args.seeds,
+            per_category: args.per_category,
+            classification: args.classification.as_deref(),
+            base_trials: args.base_trials,
+        };
+        let batch = crate::libero_plus::spec_batch(bundles, &opts)?;
+        return write_specs(&batch, &args.out);
+    }
     let set = BundleSet::open(bundles)?;
     let (mut suite, mut task, mut init, mut seed) = (vec![], vec![], vec![], vec![]);
     for s in &args.suites {
@@ -86,12 +139,16 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             Arc::new(Int64Array::from(seed)),
         ],
     )?;
-    let bytes = libero_udfs::run_store::parquet_bytes(&batch, None)?;
-    if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+    write_specs(&batch, &args.out)
+}
+
+fn write_specs(batch: &RecordBatch, out: &Path) -> Result<()> {
+    let bytes = libero_udfs::run_store::parquet_bytes(batch, None)?;
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    std::fs::write(&args.out, bytes).with_context(|| format!("writing {}", args.out.display()))?;
-    println!("wrote {} episode specs to {}", batch.num_rows(), args.out.display());
+    std::fs::write(out, bytes).with_context(|| format!("writing {}", out.display()))?;
+    println!("wrote {} episode specs to {}", batch.num_rows(), out.display());
     Ok(())
 }
 
@@ -101,6 +158,9 @@ pub struct Specs {
     pub keys: Vec<EpisodeKey>,
     /// Names of the columns besides the key columns, in file order.
     pub extras: Vec<String>,
+    /// The first row whose perturbation acts on what the policy sees (camera view, sensor noise),
+    /// if any: meaningless for a policy that sees no camera.
+    pub first_camera_row: Option<usize>,
 }
 
 /// Read a spec Parquet file and validate every row against the bundles.
@@ -164,6 +224,7 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
     }
     let batch = RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)?;
 
+    let extras_batch = batch.project(&(SPEC_COLUMNS.len()..batch.num_columns()).collect::<Vec<_>>())?;
     let suite = batch.column(0).as_string::<i32>();
     let task = batch.column(1).as_primitive::<Int32Type>();
     let init = batch.column(2).as_primitive::<Int32Type>();
@@ -171,8 +232,10 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
     let mut problems: Vec<String> = Vec::new();
     let mut keys = Vec::with_capacity(batch.num_rows());
     let mut first_row: HashMap<String, usize> = HashMap::new();
-    // per task: (number of init states, env seeds with fixture poses), or why the bundle failed
-    type TaskFacts = Result<(usize, Vec<u64>), String>;
+    let mut needs_camera: Option<usize> = None;
+    // per task: (number of init states, env seeds with fixture poses, problem class), or why the
+    // bundle failed
+    type TaskFacts = Result<(usize, Vec<u64>, String), String>;
     let mut bundle_cache: BTreeMap<(Suite, u32), TaskFacts> = BTreeMap::new();
     for r in 0..batch.num_rows() {
         use arrow::array::Array;
@@ -202,14 +265,26 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
         let info = bundle_cache.entry((s, t)).or_insert_with(|| {
             let entry = bundles.entry(s, t).map_err(|e| e.to_string())?;
             let b = bundles.load(s, t).map_err(|e| e.to_string())?;
-            Ok((entry.n_init_states, b.task.fixture_seeds.clone()))
+            Ok((entry.n_init_states, b.task.fixture_seeds.clone(), b.task.problem.clone()))
         });
+        let perturbation = match EpisodePerturbation::from_row(&extras_batch, r) {
+            Ok(p) => p,
+            Err(e) => {
+                problems.push(format!("{row}: {e}"));
+                continue;
+            }
+        };
         match info {
             Err(e) => {
                 problems.push(format!("{row}: {e}"));
                 continue;
             }
-            Ok((n_init, seeds)) => {
+            Ok((n_init, seeds, problem)) => {
+                if perturbation.view.is_some()
+                    && let Err(e) = libero_sim::viewpoint::nominal_agentview(problem)
+                {
+                    problems.push(format!("{row}: {e}"));
+                }
                 if init.value(r) as usize >= *n_init {
                     problems.push(format!(
                         "{row}: init_state_id out of range, the task has {n_init} init states (0..{n_init})"
@@ -222,7 +297,11 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
                 }
             }
         }
-        let key = EpisodeKey::new(&s.name(), task.value(r), init.value(r), seed.value(r));
+        if perturbation.needs_camera().is_some() {
+            needs_camera.get_or_insert(r);
+        }
+        let variant = perturbation.variant();
+        let key = EpisodeKey::with_variant(&s.name(), task.value(r), init.value(r), seed.value(r), variant.as_deref());
         if let Some(prev) = first_row.insert(key.episode_key.clone(), r) {
             problems.push(format!("{row}: duplicate episode key {} (first at row {prev})", key.episode_key));
         }
@@ -237,5 +316,5 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
     if batch.num_rows() == 0 {
         bail!("spec file {source} has no rows");
     }
-    Ok(Specs { batch, keys, extras })
+    Ok(Specs { batch, keys, extras, first_camera_row: needs_camera })
 }

@@ -21,6 +21,7 @@ use arrow::record_batch::RecordBatch;
 use libero_sim::bundle::BundleSet;
 use libero_sim::env::LiberoEnv;
 use libero_sim::gl::GlContext;
+use libero_udfs::perturbation::EpisodePerturbation;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 use std::sync::Arc;
@@ -74,6 +75,8 @@ pub struct RenderArgs {
 /// One stored episode: what the replay needs and what the final card says.
 struct StoredEpisode {
     key: String,
+    /// What the episode's spec row perturbed (`episodes.perturbation_params`), re-applied.
+    perturbation: EpisodePerturbation,
     suite: String,
     task_id: u32,
     init_state_id: usize,
@@ -223,6 +226,9 @@ fn replay_to_video(
     }
     let bundle = set.load(ep.suite.parse().map_err(anyhow::Error::msg)?, ep.task_id)?;
     let mut env = LiberoEnv::new(&bundle)?;
+    // The episode's camera pose and robot init pose: the same physics, seen as the policy saw it
+    // (sensor noise is on the policy's input only; the video shows the clean frames).
+    env.set_episode_edits(ep.perturbation.env_edits(&bundle.task.problem)?)?;
     env.reset(ep.init_state_id, ep.seed)?;
     let layout = args.panel.layout();
     let options = args.panel.options(&layout);
@@ -302,8 +308,8 @@ async fn load_episodes(
         let quoted = format!("'{}'", key.replace('\'', "''"));
         let rows = ctx
             .sql(&format!(
-                "SELECT suite, task_id, init_state_id, seed, instruction, success, n_policy_steps, error \
-                 FROM episodes WHERE episode_key = {quoted}"
+                "SELECT suite, task_id, init_state_id, seed, instruction, success, n_policy_steps, error, \
+                 perturbation_params FROM episodes WHERE episode_key = {quoted}"
             ))
             .await?
             .collect()
@@ -348,7 +354,15 @@ async fn load_episodes(
                 );
             }
         }
+        let params = b.column(8).as_string::<i32>();
+        let perturbation = match params.is_null(0) {
+            true => EpisodePerturbation::default(),
+            false => EpisodePerturbation::from_canonical(params.value(0))
+                .map_err(anyhow::Error::msg)
+                .with_context(|| format!("episode {key}"))?,
+        };
         out.push(StoredEpisode {
+            perturbation,
             key: key.clone(),
             suite: text(0),
             task_id: b.column(1).as_primitive::<Int32Type>().value(0) as u32,

@@ -80,6 +80,12 @@ impl PolicySpec {
         self.to_string()
     }
 
+    /// Whether the policy is given camera images (a learned VLA); the baselines, diagnostics and
+    /// the privileged expert see none, so a perturbation of the images means nothing to them.
+    pub fn sees_cameras(&self) -> bool {
+        matches!(self, PolicySpec::TorchScript { .. } | PolicySpec::OpenVla { .. } | PolicySpec::Openpi { .. })
+    }
+
     /// Baselines are expected to fail; results warn when one scores above 5%.
     pub fn is_baseline(&self) -> bool {
         matches!(self, PolicySpec::Random | PolicySpec::Lift)

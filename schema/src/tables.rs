@@ -17,7 +17,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, LazyLock};
 
 /// Version of the step/episode/manifest layout; stored in every manifest and part.
-pub const TABLES_VERSION: u32 = 5;
+pub const TABLES_VERSION: u32 = 6;
 /// Arrow field-metadata key holding a field's documentation.
 pub const DOC_KEY: &str = "doc";
 /// Parquet key-value metadata key holding the run manifest (JSON) in every part.
@@ -60,7 +60,7 @@ fn key_fields() -> Vec<Field> {
             "episode_key",
             DataType::Utf8,
             false,
-            "`suite/task_id/init_state_id/seed`: unique within a run, the join key of every table",
+            "`suite/task_id/init_state_id/seed`, then `/v<variant>` for a perturbed episode: unique within a run, the join key of every table",
         ),
         field("suite", DataType::Utf8, false, "LIBERO suite, e.g. libero_spatial"),
         field("task_id", DataType::Int32, false, "task index within the suite (0-based, LIBERO order)"),
@@ -171,6 +171,18 @@ pub fn episodes() -> SchemaRef {
                 DataType::Utf8,
                 true,
                 "LIBERO-PRO perturbation of the suite: none, swap, object, lan, task, env; derived from the suite name. Null in runs written before tables v4 (the queries derive it there)",
+            ),
+            field(
+                "variant_hash",
+                DataType::Utf8,
+                true,
+                "the episode's perturbation variant: 12 hex digits of the sha256 of perturbation_params, part of episode_key; null for an episode whose spec row sets no perturbation column (and in runs before tables v6)",
+            ),
+            field(
+                "perturbation_params",
+                DataType::Utf8,
+                true,
+                "what the spec row's perturbation columns set, as applied: canonical JSON (camera view, robot_init_qpos, instruction, sensor_noise, variant name); null when nothing",
             ),
             field(
                 "instruction",

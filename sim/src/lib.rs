@@ -11,6 +11,7 @@
 //! - [`osc`] and [`gripper`]: robosuite's OSC_POSE controller and Panda gripper, quirks included;
 //! - [`predicates`]: the BDDL goal (On, In, Open, Close, TurnOn, TurnOff, Up) as LIBERO checks it;
 //! - [`env`]: the gym-shaped [`env::LiberoEnv`] tying them together at 20 Hz (25 substeps of 2 ms);
+//! - [`viewpoint`]: LIBERO-Plus camera viewpoints (the `agentview` pose of a view variant);
 //! - [`gl`] and [`render`]: headless EGL contexts and camera frames rendered as the reference renders
 //!   them (orientation conventions, the published stack's look, a clearly named preview mode).
 //!
@@ -33,11 +34,13 @@ pub mod env;
 mod error;
 pub mod gl;
 pub mod gripper;
+pub mod image_noise;
 pub mod npy;
 pub mod osc;
 pub mod predicates;
 pub mod render;
 pub mod scene;
+pub mod viewpoint;
 
 pub use error::SimError;
 

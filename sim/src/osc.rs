@@ -96,6 +96,14 @@ impl OscController {
         }
     }
 
+    /// The arm configuration robosuite's `reset()` puts the robot in (its `init_qpos`) and the
+    /// end-effector orientation there: the null-space target for the whole episode and the goal
+    /// orientation [`reset`](Self::reset) restores. A LIBERO-Plus robot-init variant changes them.
+    pub fn set_rest_pose(&mut self, initial_joint: &[f64; ARM_DOF], ee_ori: &Matrix3<f64>) {
+        self.initial_joint = Vec7::from_column_slice(initial_joint);
+        self.reset_goal_ori = *ee_ori;
+    }
+
     /// What `reset()` leaves: the goal orientation is the reset-time ee orientation.
     pub fn reset(&mut self) {
         self.goal_ori = self.reset_goal_ori;

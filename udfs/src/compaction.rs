@@ -212,13 +212,15 @@ pub async fn finished_part_names(store: &RunStore) -> Result<std::collections::H
         let builder = ParquetRecordBatchReaderBuilder::try_new(bytes).with_context(|| format!("episodes/{part}"))?;
         let mask = {
             let schema = builder.parquet_schema();
-            let columns: Vec<usize> = ["suite", "task_id", "init_state_id", "seed"]
+            let mut columns: Vec<usize> = ["suite", "task_id", "init_state_id", "seed"]
                 .iter()
                 .map(|n| {
                     let found = schema.columns().iter().position(|c| c.name() == *n);
                     found.with_context(|| format!("episodes/{part} has no {n} column"))
                 })
                 .collect::<Result<_>>()?;
+            // runs before tables v6 have no variant_hash column: all their episodes are unperturbed
+            columns.extend(schema.columns().iter().position(|c| c.name() == "variant_hash"));
             parquet::arrow::ProjectionMask::leaves(schema, columns)
         };
         for batch in builder.with_projection(mask).build()? {
@@ -227,9 +229,16 @@ pub async fn finished_part_names(store: &RunStore) -> Result<std::collections::H
             let task = batch.column_by_name("task_id").context("task_id")?.as_primitive::<Int32Type>();
             let init = batch.column_by_name("init_state_id").context("init_state_id")?.as_primitive::<Int32Type>();
             let seed = batch.column_by_name("seed").context("seed")?.as_primitive::<Int64Type>();
+            let variant = batch.column_by_name("variant_hash").map(|c| c.as_string::<i32>().clone());
             for i in 0..batch.num_rows() {
-                let key =
-                    crate::steps_batch::EpisodeKey::new(suite.value(i), task.value(i), init.value(i), seed.value(i));
+                let variant = variant.as_ref().filter(|v| arrow::array::Array::is_valid(v, i)).map(|v| v.value(i));
+                let key = crate::steps_batch::EpisodeKey::with_variant(
+                    suite.value(i),
+                    task.value(i),
+                    init.value(i),
+                    seed.value(i),
+                    variant,
+                );
                 out.insert(key.part_name());
             }
         }

@@ -8,6 +8,7 @@
 //! `success` (any policy step within the cap) equals the published first-success latch either way.
 
 use crate::goal_evidence::GoalChanges;
+use crate::perturbation::EpisodePerturbation;
 use crate::policy_cameras::PolicyCameras;
 use crate::scene_view::SceneReader;
 use crate::steps_batch::{EpisodeKey, StepRecord, StepsBatchBuilder};
@@ -19,6 +20,7 @@ use libero_schema::protocol::WAIT_ACTION;
 use libero_schema::{InstructionSource, Suite, tables};
 use libero_sim::SimError;
 use libero_sim::env::LiberoEnv;
+use libero_sim::image_noise::SeededDraws;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -131,16 +133,21 @@ pub fn start_sha256(bundle: &libero_sim::bundle::TaskBundle, key: &EpisodeKey) -
     Ok(format!("{:x}", h.finalize()))
 }
 
-/// Run one episode on `env` (already built for the key's task) with `policy`.
+/// Run one episode on `env` (already built for the key's task) with `policy`, perturbed as the
+/// spec row says (`EpisodePerturbation::default()` for none).
 pub fn run_episode(
     env: &mut LiberoEnv,
     policy: &mut dyn Policy,
     key: &EpisodeKey,
     protocol: &EpisodeProtocol,
+    perturbation: &EpisodePerturbation,
     policy_seed: u64,
 ) -> (StepsBatchBuilder, EpisodeSummary) {
     let t_start = Instant::now();
-    let (instruction, instruction_source) = env.bundle().task.instruction(protocol.instruction_source);
+    let (instruction, instruction_source) = match &perturbation.instruction {
+        Some(text) => (text.as_str(), "spec"),
+        None => env.bundle().task.instruction(protocol.instruction_source),
+    };
     let instruction = instruction.to_string();
     let object_names: Vec<String> = env.object_names().map(str::to_string).collect();
     let mut steps = StepsBatchBuilder::new(key.clone(), object_names);
@@ -161,6 +168,11 @@ pub fn run_episode(
         render_s: 0.0,
         started_at: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).ok().map(|d| d.as_secs_f64()),
     };
+    let edits = perturbation.env_edits(&env.bundle().task.problem).and_then(|edits| env.set_episode_edits(edits));
+    if let Err(e) = edits {
+        summary.error = Some(EpisodeError::from_sim(&e));
+        return (steps, summary);
+    }
     let mut goal = match env.reset(key.init_state_id as usize, key.seed as u64) {
         Ok(g) => g,
         Err(e) => {
@@ -193,7 +205,18 @@ pub fn run_episode(
                 let images = match policy.camera_size() {
                     None => None,
                     Some(size) => match capture(&mut cameras, env, size, policy.wants_wrist_camera()) {
-                        Ok(images) => Some(images),
+                        Ok(mut images) => {
+                            if let Some(noise) = &perturbation.sensor_noise {
+                                let mut draws = SeededDraws::new(noise_seed(key, p));
+                                let a = &mut images.agentview;
+                                if let Err(e) = noise.apply(&mut a.rgb, a.width as usize, a.height as usize, &mut draws)
+                                {
+                                    summary.error = Some(EpisodeError { kind: "perturbation", message: e });
+                                    break;
+                                }
+                            }
+                            Some(images)
+                        }
                         Err(e) => {
                             summary.error = Some(EpisodeError::from_sim(&e));
                             break;
@@ -275,6 +298,14 @@ pub fn run_episode(
     (steps, summary)
 }
 
+/// Seed of the sensor-noise draws of policy step `policy_step`: a stable hash of the episode key
+/// and the step, so a rerun corrupts every frame the same way and no two frames share a field.
+pub fn noise_seed(key: &EpisodeKey, policy_step: u32) -> u64 {
+    use sha2::{Digest, Sha256};
+    let h = Sha256::digest(format!("{}/sensor_noise/{policy_step}", key.episode_key).as_bytes());
+    u64::from_le_bytes(h[..8].try_into().expect("8 bytes"))
+}
+
 /// The camera images of the env's current state at `size` (the wrist camera only when `wrist`),
 /// (re)making the renderer when the size changes.
 fn capture(
@@ -293,6 +324,8 @@ fn capture(
 #[derive(Debug, Clone)]
 pub struct EpisodeContext<'a> {
     pub policy: &'a str,
+    /// The canonical JSON of the episode's perturbation ([`crate::perturbation::EpisodePerturbation::canonical`]).
+    pub perturbation_params: Option<&'a str>,
     pub run_config: &'a str,
     pub protocol: &'a EpisodeProtocol,
 }
@@ -330,6 +363,8 @@ pub fn episode_batch(
         Arc::new(Int64Array::from(vec![key.seed])),
         Arc::new(StringArray::from(vec![suite.map(|s| s.base.name())])),
         Arc::new(StringArray::from(vec![suite.map(|s| s.perturbation_name())])),
+        Arc::new(StringArray::from(vec![key.variant.as_deref()])),
+        Arc::new(StringArray::from(vec![ctx.perturbation_params])),
         Arc::new(StringArray::from(vec![s.instruction.as_str()])),
         Arc::new(StringArray::from(vec![s.instruction_source])),
         Arc::new(StringArray::from(vec![s.start_sha256.as_deref()])),

@@ -24,6 +24,7 @@ pub mod episode;
 pub mod goal_evidence;
 pub mod mcnemar;
 pub mod newcombe;
+pub mod perturbation;
 pub mod policy_cameras;
 pub mod rollout;
 pub mod run_store;

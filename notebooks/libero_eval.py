@@ -762,6 +762,31 @@ else:
     print("this run holds no LIBERO-PRO suite: add them to the spec table to see whether its numbers survive perturbation")
 
 # %% [markdown]
+# **LIBERO-Plus by category.** A run of a LIBERO-Plus spec table (`pipeline specs --benchmark
+# libero-plus`) has one row per variant with the authors' `category` (Camera, Robot, Language,
+# Noise here), its parameters in the perturbation columns, and base rows (`category` null: the
+# same tasks in LIBERO-Plus's unperturbed env). Per suite × category the success rate and its
+# drop from the suite's base rate; `pipeline generalisation --run RUN` adds the Wilson intervals,
+# an interval for each drop and the leaderboard beside it, and the report shows the heat map.
+
+# %%
+if "category" in episodes.columns and episodes.filter(pl.col("benchmark") == "libero_plus").height:
+    plus = episodes.filter(pl.col("benchmark") == "libero_plus")
+    base = plus.filter(pl.col("category").is_null()).group_by("base_suite").agg(base=pl.col("success").cast(pl.Float64).mean())
+    by_category = (
+        plus.filter(pl.col("category").is_not_null())
+        .group_by("base_suite", "category")
+        .agg(rate=pl.col("success").cast(pl.Float64).mean(), n=pl.len())
+        .join(base, on="base_suite", how="left")
+        .with_columns(drop=pl.col("base") - pl.col("rate"))
+    )
+    display(by_category.pivot(on="category", index=["base_suite", "base"], values="rate").sort("base_suite"))
+    pooled = plus.filter(pl.col("category").is_not_null())
+    print(f"variant-weighted total over the categories run: {100 * pooled['success'].cast(pl.Float64).mean():.1f}% of {pooled.height} variants")
+else:
+    print("this run holds no LIBERO-Plus rows: `pipeline specs --benchmark libero-plus` makes a spec table of them")
+
+# %% [markdown]
 # **Reflection prompts** (write at least 100 words below, naming one suite):
 #
 # 1. Which of this run's per-suite numbers do you believe most? Least? (Interval width, the

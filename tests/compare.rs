@@ -90,7 +90,7 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
             render_s: 0.0,
             started_at: None,
         };
-        let ctx = EpisodeContext { policy, run_config: policy, protocol: &protocol };
+        let ctx = EpisodeContext { policy, perturbation_params: None, run_config: policy, protocol: &protocol };
         let ep = episode_batch(&key, &summary, &ctx, None).unwrap();
         write_episode_parts(dir, &key, b, &ep);
     }

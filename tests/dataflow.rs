@@ -406,7 +406,8 @@ fn synthetic_run() -> PathBuf {
             render_s: 0.0,
             started_at: None,
         };
-        let ctx = EpisodeContext { policy: "synthetic", run_config: "test", protocol: &protocol };
+        let ctx =
+            EpisodeContext { policy: "synthetic", perturbation_params: None, run_config: "test", protocol: &protocol };
         let ep = episode_batch(&key, &summary, &ctx, None).unwrap();
         let write = |dir: &str, batch: &RecordBatch| {
             let bytes = libero_udfs::run_store::parquet_bytes(batch, None).unwrap();

@@ -181,7 +181,12 @@ fn run() -> PathBuf {
                 render_s: 0.0,
                 started_at: None,
             };
-            let ctx = EpisodeContext { policy: "constructed", run_config: "constructed", protocol: &protocol };
+            let ctx = EpisodeContext {
+                policy: "constructed",
+                perturbation_params: None,
+                run_config: "constructed",
+                protocol: &protocol,
+            };
             write_episode_parts(&dir, &key, steps, &episode_batch(&key, &summary, &ctx, None).unwrap());
         }
         write_constructed_manifest(&dir, "constructed", WAIT);

@@ -22,6 +22,9 @@ pub enum Bench {
     /// A stored run's figures: episodes/s and peak RSS of its invocations, files per table, and
     /// the wall time of re-scoring it (results under each definition, report).
     Run(crate::bench_run::RunArgs),
+    /// What each perturbation (camera, robot init, sensor noise per kind) adds to an episode's
+    /// wall time (reset + render + env step per policy step).
+    Perturbation(crate::bench_perturbation::PerturbationArgs),
 }
 
 #[derive(clap::Args)]
@@ -61,6 +64,7 @@ pub fn run(bundles: &Path, bench: Bench) -> Result<()> {
         Bench::Sim(args) => sim(bundles, args),
         Bench::Render(args) => render(bundles, args),
         Bench::Run(args) => crate::bench_run::run(args),
+        Bench::Perturbation(args) => crate::bench_perturbation::run(bundles, args),
     }
 }
 

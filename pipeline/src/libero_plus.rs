@@ -245,7 +245,6 @@ impl InstructionMode {
 /// and its category must agree with the name's.
 #[derive(Debug, Deserialize)]
 struct ClassificationRow {
-    id: u32,
     name: String,
     category: String,
     difficulty_level: Option<i32>,
@@ -365,17 +364,17 @@ pub fn spec_batch(bundles: &Path, opts: &PlusOptions) -> Result<RecordBatch> {
     rows.finish()
 }
 
-fn read_classification(path: &Path) -> Result<HashMap<(String, String), (String, Option<i32>)>> {
+/// (suite, variant name) → (the authors' category, difficulty level).
+type Classification = HashMap<(String, String), (String, Option<i32>)>;
+
+fn read_classification(path: &Path) -> Result<Classification> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     let doc: BTreeMap<String, Vec<ClassificationRow>> = serde_json::from_str(&text)
         .with_context(|| format!("{} is not LIBERO-Plus's task_classification.json", path.display()))?;
     Ok(doc
         .into_iter()
         .flat_map(|(suite, rows)| {
-            rows.into_iter().map(move |r| {
-                let _ = r.id;
-                ((suite.clone(), r.name), (r.category, r.difficulty_level))
-            })
+            rows.into_iter().map(move |r| ((suite.clone(), r.name), (r.category, r.difficulty_level)))
         })
         .collect())
 }

@@ -4,6 +4,7 @@
 //! own module; this file only parses arguments and dispatches.
 
 mod bench;
+mod bench_perturbation;
 mod bench_run;
 mod bundles_location;
 mod compact;

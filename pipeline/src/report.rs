@@ -2,7 +2,8 @@
 //!
 //! Every number on the page comes from a query over the stored rows (`queries/results.sql`,
 //! `results_by_task.sql`, `failure_summary.sql`, `published_comparison.sql`,
-//! `video_selection.sql`, and `robustness.sql`/`robustness_summary.sql` for a run with LIBERO-PRO
+//! `video_selection.sql`, `generalisation.sql`/`generalisation_summary.sql` for a run with LIBERO-Plus
+//! rows, and `robustness.sql`/`robustness_summary.sql` for a run with LIBERO-PRO
 //! suites); this module only lays them out. The page needs nothing beside it:
 //! plots are inline SVG, pictures and videos are embedded as data URLs, and its one script (a
 //! filter on the comparison table) is inline. The first run is the subject (its failure videos are
@@ -51,6 +52,10 @@ pub struct RunTables {
     /// perturbed suite.
     pub robustness: Vec<RecordBatch>,
     pub robustness_summary: Vec<RecordBatch>,
+    /// LIBERO-Plus by category (`queries/generalisation*.sql`): empty when the run holds no
+    /// LIBERO-Plus rows.
+    pub generalisation: Vec<RecordBatch>,
+    pub generalisation_summary: Vec<RecordBatch>,
 }
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
@@ -72,6 +77,10 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     if tables.iter().any(|t| !t.robustness.is_empty()) {
         write_csv(&args.out.join("robustness.csv"), &all(|t| &t.robustness))?;
         write_csv(&args.out.join("robustness_summary.csv"), &all(|t| &t.robustness_summary))?;
+    }
+    if tables.iter().any(|t| !t.generalisation.is_empty()) {
+        write_csv(&args.out.join("generalisation.csv"), &all(|t| &t.generalisation))?;
+        write_csv(&args.out.join("generalisation_summary.csv"), &all(|t| &t.generalisation_summary))?;
     }
 
     let page = Page::build(&tables, &args.scoring.describe(), &args.out, args.embed_videos_mb * 1_000_000)?;
@@ -101,7 +110,14 @@ async fn query_run(location: &str, scoring: Scoring) -> Result<RunTables> {
     } else {
         (vec![], vec![])
     };
+    let (generalisation, generalisation_summary) = if crate::generalisation::has_plus_rows(&ctx).await? {
+        crate::generalisation::tables(&ctx).await?
+    } else {
+        (vec![], vec![])
+    };
     Ok(RunTables {
+        generalisation,
+        generalisation_summary,
         location: location.to_string(),
         manifest,
         suites: queries::run(&ctx, queries::RESULTS).await?,

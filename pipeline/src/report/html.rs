@@ -148,6 +148,7 @@ impl Page {
         section_videos(&mut body, subject, out, embed_limit);
         section_smoke(&mut body, subject, out);
         section_robustness(&mut body, runs);
+        section_generalisation(&mut body, runs);
         section_published(&mut body, runs);
         section_provenance(&mut body, runs);
 
@@ -478,6 +479,92 @@ fn section_robustness(body: &mut String, runs: &[RunTables]) {
                 ("paired", "paired"),
                 ("instruction_changed", "instruction changed"),
                 ("published", "LIBERO-PRO leaderboard"),
+            ],
+        );
+    }
+}
+
+/// LIBERO-Plus by category: a heat map of suite (and difficulty, when labelled) × category, each
+/// cell its rate with interval and drop on hover, then this run beside the leaderboard.
+fn section_generalisation(body: &mut String, runs: &[RunTables]) {
+    if runs.iter().all(|r| r.generalisation.is_empty()) {
+        return;
+    }
+    body.push_str(
+        "<h2 id=generalisation>Does the number survive perturbation? LIBERO-Plus by category</h2><p class=muted>\
+         queries/generalisation.sql and generalisation_summary.sql. Each cell: success rate over the variants of \
+         the category (k/n), its drop from the base rate (the same tasks in LIBERO-Plus's unperturbed env) on \
+         hover with both 95% intervals. Rows: the suites, then all suites pooled, then per difficulty level \
+         when the spec carries the authors' labels. Light, Background and Layout need assets or bundles not \
+         available here; the totals cover the categories run.</p>",
+    );
+    const CATEGORIES: [&str; 7] = ["Camera", "Robot", "Language", "Light", "Background", "Noise", "Layout"];
+    for r in runs.iter().filter(|r| !r.generalisation.is_empty()) {
+        let _ = write!(body, "<h3>{} <span class=muted>({})</span></h3>", esc(&r.manifest.policy), esc(&r.location));
+        let rows = Rows::of(&r.generalisation).rows;
+        let mut lines: Vec<(String, Vec<&BTreeMap<String, String>>)> = Vec::new();
+        for row in &rows {
+            let label = match get(row, "difficulty") {
+                "" => get(row, "base_suite").to_string(),
+                d => format!("difficulty {d}"),
+            };
+            match lines.iter_mut().find(|(l, _)| *l == label) {
+                Some((_, cells)) => cells.push(row),
+                None => lines.push((label, vec![row])),
+            }
+        }
+        body.push_str("<table class=heatmap id=generalisation-map><tr><th></th><th>base</th>");
+        for c in CATEGORIES {
+            let _ = write!(body, "<th class=cell>{c}</th>");
+        }
+        body.push_str("</tr>");
+        for (label, cells) in &lines {
+            let base = cells.first().map(|c| get(c, "base_rate")).unwrap_or("");
+            let base = if base.is_empty() { "-".to_string() } else { pct(base.parse().unwrap_or(f64::NAN)) };
+            let _ = write!(body, "<tr><th>{}</th><td class=n>{base}</td>", esc(label));
+            for c in CATEGORIES {
+                match cells.iter().find(|x| get(x, "category") == c) {
+                    Some(x) => {
+                        let rate = num(x, "success_rate");
+                        let g = (255.0 - 120.0 * rate) as u8;
+                        let rb = (255.0 - 200.0 * rate) as u8;
+                        let _ = write!(
+                            body,
+                            "<td class=cell style='background:rgb({rb},{g},{rb})' title='{c}: {} [{}, {}]; drop {} [{}, {}]'>{}/{}</td>",
+                            pct(rate),
+                            pct(num(x, "ci_lo")),
+                            pct(num(x, "ci_hi")),
+                            pct(num(x, "drop_from_base")),
+                            pct(num(x, "drop_lo")),
+                            pct(num(x, "drop_hi")),
+                            get(x, "n_success"),
+                            get(x, "n_total")
+                        );
+                    }
+                    None => body.push_str("<td class=cell>-</td>"),
+                }
+            }
+            body.push_str("</tr>");
+        }
+        body.push_str("</table>");
+        table(
+            body,
+            "generalisation-summary",
+            &Rows::of(&r.generalisation_summary).rows,
+            &[
+                ("model", "model"),
+                ("camera", "Camera"),
+                ("robot", "Robot"),
+                ("language", "Language"),
+                ("light", "Light"),
+                ("background", "Background"),
+                ("noise", "Noise"),
+                ("layout", "Layout"),
+                ("total_weighted", "total (variant-weighted)"),
+                ("mean_categories", "mean of categories"),
+                ("robust_avg", "mean without Language"),
+                ("n_variants", "variants"),
+                ("note", "note"),
             ],
         );
     }

@@ -85,7 +85,7 @@ impl LiberoEnv {
 
     /// The scene's camera names (for errors).
     fn camera_names(&self) -> Vec<String> {
-        (0..self.model.ffi().ncam as i32)
+        (0..self.model.ffi().ncam)
             .filter_map(|i| self.model.id_to_name(MjtObj::mjOBJ_CAMERA, i).map(str::to_string))
             .collect()
     }

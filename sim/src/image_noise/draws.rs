@@ -18,7 +18,7 @@ pub trait NoiseDraws {
     fn uniform_batch(&mut self, low: f64, high: f64, out: &mut [f64]);
     /// `out.len() / per_call` successive calls `np.random.randint(low, high, size=per_call)`
     /// (integers in `[low, high)`). One method for many calls only to spare a virtual call per
-    /// pixel in glass blur; a log still holds each call on its own.
+    /// pixel in glass blur; a log still counts them as that many calls.
     fn randint_calls(&mut self, low: i64, high: i64, per_call: usize, out: &mut [i64]);
 }
 
@@ -83,56 +83,84 @@ impl NoiseDraws for SeededDraws {
     }
 }
 
-/// One numpy call as the reference would make it, with the values it returned. Serialized as
-/// `{"fn": "uniform"|"randint", "low", "high", "size", "values"}`; `size` is null for a scalar
-/// `uniform` call, else the number of elements (numpy's `size` multiplied out).
+/// A run of identical numpy calls (same function and arguments) as the reference would make
+/// them, with the values they returned in order: `calls` calls of `size` values each (`size` is
+/// None for scalar `uniform` calls, one value each). Serialized as `{"fn": "uniform"|"randint",
+/// "low", "high", "size", "calls", "values"}`: a frame of glass blur is ~150k calls, one run.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "fn", rename_all = "snake_case")]
-pub enum DrawCall {
-    Uniform { low: f64, high: f64, size: Option<usize>, values: Vec<f64> },
-    Randint { low: i64, high: i64, size: usize, values: Vec<i64> },
+pub enum DrawRun {
+    Uniform { low: f64, high: f64, size: Option<usize>, calls: usize, values: Vec<f64> },
+    Randint { low: i64, high: i64, size: usize, calls: usize, values: Vec<i64> },
 }
 
 /// Draws from `D`, logging every call: the evidence the oracle replays into the reference code.
 #[derive(Debug, Clone)]
 pub struct RecordingDraws<D> {
     inner: D,
-    calls: Vec<DrawCall>,
+    runs: Vec<DrawRun>,
 }
 
 impl<D: NoiseDraws> RecordingDraws<D> {
     pub fn new(inner: D) -> Self {
-        RecordingDraws { inner, calls: Vec::new() }
+        RecordingDraws { inner, runs: Vec::new() }
     }
 
-    /// The calls so far, in order.
-    pub fn calls(&self) -> &[DrawCall] {
-        &self.calls
+    /// The calls so far, in order, as runs of identical calls.
+    pub fn runs(&self) -> &[DrawRun] {
+        &self.runs
     }
 
-    /// The log as JSON (a list of [`DrawCall`]s), the format `noise_oracle.py` reads. Floats are
+    /// How many numpy calls were made.
+    pub fn call_count(&self) -> usize {
+        self.runs
+            .iter()
+            .map(|r| match r {
+                DrawRun::Uniform { calls, .. } | DrawRun::Randint { calls, .. } => calls,
+            })
+            .sum()
+    }
+
+    /// The log as JSON (a list of [`DrawRun`]s), the format `noise_oracle.py` reads. Floats are
     /// written in their shortest exact form, so Python reads back the very values drawn.
     pub fn to_json(&self) -> String {
-        serde_json::to_string(&self.calls).expect("draw calls serialize")
+        serde_json::to_string(&self.runs).expect("draw runs serialize")
+    }
+
+    fn record_uniform(&mut self, low: f64, high: f64, size: Option<usize>, drawn: &[f64]) {
+        if let Some(DrawRun::Uniform { low: l, high: h, size: s, calls, values }) = self.runs.last_mut()
+            && (*l, *h, *s) == (low, high, size)
+        {
+            *calls += 1;
+            values.extend_from_slice(drawn);
+        } else {
+            self.runs.push(DrawRun::Uniform { low, high, size, calls: 1, values: drawn.to_vec() });
+        }
     }
 }
 
 impl<D: NoiseDraws> NoiseDraws for RecordingDraws<D> {
     fn uniform(&mut self, low: f64, high: f64) -> f64 {
         let v = self.inner.uniform(low, high);
-        self.calls.push(DrawCall::Uniform { low, high, size: None, values: vec![v] });
+        self.record_uniform(low, high, None, &[v]);
         v
     }
 
     fn uniform_batch(&mut self, low: f64, high: f64, out: &mut [f64]) {
         self.inner.uniform_batch(low, high, out);
-        self.calls.push(DrawCall::Uniform { low, high, size: Some(out.len()), values: out.to_vec() });
+        self.record_uniform(low, high, Some(out.len()), out);
     }
 
     fn randint_calls(&mut self, low: i64, high: i64, per_call: usize, out: &mut [i64]) {
         self.inner.randint_calls(low, high, per_call, out);
-        for values in out.chunks(per_call) {
-            self.calls.push(DrawCall::Randint { low, high, size: per_call, values: values.to_vec() });
+        let n = out.len() / per_call;
+        if let Some(DrawRun::Randint { low: l, high: h, size, calls, values }) = self.runs.last_mut()
+            && (*l, *h, *size) == (low, high, per_call)
+        {
+            *calls += n;
+            values.extend_from_slice(out);
+        } else {
+            self.runs.push(DrawRun::Randint { low, high, size: per_call, calls: n, values: out.to_vec() });
         }
     }
 }
@@ -163,17 +191,23 @@ mod tests {
         let angle = rec.uniform(-45.0, 45.0);
         let mut field = [0.0; 4];
         rec.uniform_batch(-100.0, 100.0, &mut field);
-        let mut shifts = [0i64; 6];
-        rec.randint_calls(-1, 1, 2, &mut shifts);
-        let calls = rec.calls();
-        assert_eq!(calls.len(), 1 + 1 + 3, "three randint(size=2) calls");
-        assert_eq!(calls[0], DrawCall::Uniform { low: -45.0, high: 45.0, size: None, values: vec![angle] });
-        assert_eq!(calls[1], DrawCall::Uniform { low: -100.0, high: 100.0, size: Some(4), values: field.to_vec() });
-        assert_eq!(calls[4], DrawCall::Randint { low: -1, high: 1, size: 2, values: shifts[4..].to_vec() });
+        let (mut row1, mut row2) = ([0i64; 6], [0i64; 4]);
+        rec.randint_calls(-1, 1, 2, &mut row1);
+        rec.randint_calls(-1, 1, 2, &mut row2);
+        assert_eq!(rec.call_count(), 1 + 1 + 5, "five randint(size=2) calls");
+        let runs = rec.runs();
+        assert_eq!(runs[0], DrawRun::Uniform { low: -45.0, high: 45.0, size: None, calls: 1, values: vec![angle] });
+        assert_eq!(
+            runs[1],
+            DrawRun::Uniform { low: -100.0, high: 100.0, size: Some(4), calls: 1, values: field.into() }
+        );
+        let values = [row1.as_slice(), &row2].concat();
+        assert_eq!(runs[2], DrawRun::Randint { low: -1, high: 1, size: 2, calls: 5, values });
+        assert_eq!(runs.len(), 3, "identical calls share a run");
         let json: serde_json::Value = serde_json::from_str(&rec.to_json()).unwrap();
         assert_eq!(json[0]["fn"], "uniform");
         assert_eq!(json[0]["size"], serde_json::Value::Null);
         assert_eq!(json[0]["values"][0].as_f64(), Some(angle));
-        assert_eq!(json[2]["fn"], "randint");
+        assert_eq!((json[2]["fn"].as_str(), json[2]["calls"].as_u64()), (Some("randint"), Some(5)));
     }
 }

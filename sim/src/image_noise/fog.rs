@@ -37,14 +37,17 @@ fn plasma_fractal(wibble_decay: f64, draws: &mut dyn NoiseDraws) -> Vec<f64> {
     let mut noise = vec![0.0; (M / 2) * (M / 2)];
     while step >= 2 {
         let (n, half) = (M / step, step / 2);
+        // n is a power of two: `& wrap` is numpy's roll wrap-around, `>> shift` a division by n.
+        let (wrap, shift) = (n - 1, n.trailing_zeros());
         let noise = &mut noise[..n * n];
         // fillsquares: corner sums down (axis 0) then across (axis 1), the centre of each square.
         draws.uniform_batch(-wibble, wibble, noise);
-        let corner = |map: &[f64], i: usize, j: usize| map[at((i % n) * step, (j % n) * step)];
-        let down: Vec<f64> = (0..n * n).map(|k| corner(&map, k / n, k % n) + corner(&map, k / n + 1, k % n)).collect();
+        let corner = |map: &[f64], i: usize, j: usize| map[at((i & wrap) * step, (j & wrap) * step)];
+        let down: Vec<f64> =
+            (0..n * n).map(|k| corner(&map, k >> shift, k) + corner(&map, (k >> shift) + 1, k)).collect();
         for i in 0..n {
             for j in 0..n {
-                let sum = down[i * n + j] + down[i * n + (j + 1) % n];
+                let sum = down[i * n + j] + down[i * n + ((j + 1) & wrap)];
                 map[at(i * step + half, j * step + half)] = sum / 4.0 + wibble * noise[i * n + j];
             }
         }
@@ -54,16 +57,16 @@ fn plasma_fractal(wibble_decay: f64, draws: &mut dyn NoiseDraws) -> Vec<f64> {
         draws.uniform_batch(-wibble, wibble, noise);
         for i in 0..n {
             for j in 0..n {
-                let ldr = dr(&map, i, j) + dr(&map, (i + n - 1) % n, j);
-                let lul = ul(&map, i, j) + ul(&map, i, (j + 1) % n);
+                let ldr = dr(&map, i, j) + dr(&map, (i + wrap) & wrap, j);
+                let lul = ul(&map, i, j) + ul(&map, i, (j + 1) & wrap);
                 map[at(i * step, j * step + half)] = (ldr + lul) / 4.0 + wibble * noise[i * n + j];
             }
         }
         draws.uniform_batch(-wibble, wibble, noise);
         for i in 0..n {
             for j in 0..n {
-                let tdr = dr(&map, i, j) + dr(&map, i, (j + n - 1) % n);
-                let tul = ul(&map, i, j) + ul(&map, (i + 1) % n, j);
+                let tdr = dr(&map, i, j) + dr(&map, i, (j + wrap) & wrap);
+                let tul = ul(&map, i, j) + ul(&map, (i + 1) & wrap, j);
                 map[at(i * step + half, j * step)] = (tdr + tul) / 4.0 + wibble * noise[i * n + j];
             }
         }
@@ -97,24 +100,24 @@ pub(super) fn fog(rgb: &mut [u8], width: usize, height: usize, severity: u8, dra
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::image_noise::{DrawCall, RecordingDraws, SeededDraws};
+    use crate::image_noise::{DrawRun, RecordingDraws, SeededDraws};
 
     #[test]
     fn the_plasma_makes_the_references_calls_and_spans_zero_to_one() {
         let mut draws = RecordingDraws::new(SeededDraws::new(3));
         let map = plasma_fractal(2.0, &mut draws);
         let sizes: Vec<usize> = draws
-            .calls()
+            .runs()
             .iter()
-            .map(|c| match c {
-                DrawCall::Uniform { size: Some(n), .. } => *n,
-                other => panic!("unexpected call {other:?}"),
+            .flat_map(|run| match run {
+                DrawRun::Uniform { size: Some(n), calls, .. } => vec![*n; *calls],
+                other => panic!("unexpected run {other:?}"),
             })
             .collect();
         let expected: Vec<usize> = (0..8).flat_map(|l| [4usize.pow(l); 3]).collect();
         assert_eq!(sizes, expected);
         assert_eq!(sizes.iter().sum::<usize>(), 65_535);
-        let DrawCall::Uniform { low, high, .. } = &draws.calls()[3] else { unreachable!() };
+        let DrawRun::Uniform { low, high, .. } = &draws.runs()[1] else { unreachable!() };
         assert_eq!((*low, *high), (-50.0, 50.0), "wibble 100 / 2 at the second level");
         assert_eq!(map.iter().copied().fold(f64::INFINITY, f64::min), 0.0);
         assert_eq!(map.iter().copied().fold(f64::NEG_INFINITY, f64::max), 1.0);

@@ -54,10 +54,17 @@ fn numpy_sum(a: &[f64]) -> f64 {
     a[blocks..].iter().fold(res, |acc, v| acc + v)
 }
 
-avx2_dispatch! {
 /// `gaussian_filter(img, (sigma, sigma, 0), mode='nearest', truncate=4)` in place, on an
 /// H×W×3 float64 image (row-major, channels interleaved).
 pub(super) fn gaussian_filter(img: &mut [f64], width: usize, height: usize, sigma: f64) {
+    super::vectorized(
+        #[inline(always)]
+        || filter(img, width, height, sigma),
+    )
+}
+
+#[inline(always)]
+fn filter(img: &mut [f64], width: usize, height: usize, sigma: f64) {
     let w = kernel(sigma);
     let r = w.len() / 2;
     let (w0, taps) = (w[r], &w[r + 1..]); // taps[j - 1]: the weight at offset ±j
@@ -90,7 +97,6 @@ pub(super) fn gaussian_filter(img: &mut [f64], width: usize, height: usize, sigm
             out.iter_mut().zip(left).zip(right).for_each(|((o, &a), &b)| *o += (a + b) * wj);
         }
     }
-}
 }
 
 #[cfg(test)]

@@ -14,9 +14,9 @@
 //!   `SetImageDepth(image, 8)` (coders/png.c): `(unsigned) (255.0·q / 65535)`, i.e. `q / 257`
 //!   rounded down (not `ScaleQuantumToChar`'s rounding, which would differ in ~45% of values).
 //!
-//! ImageMagick 7 (HDRI by default, what the spec's reading of `MotionBlurImage` assumed) keeps the
-//! sum as a float and scales it to 8 bits with rounding: it can differ from this by 1 in many
-//! pixels. It is not what `libmagickwand-dev` installs on Debian or Ubuntu, and was not measured.
+//! ImageMagick 7 (the spec's reading of `MotionBlurImage`; HDRI by default) keeps the sum as a
+//! float, without the 16-bit rounding, and scales it to 8 bits its own way: its bytes may differ
+//! by 1. It is not what `libmagickwand-dev` installs on Debian or Ubuntu, and was not measured.
 
 use super::NoiseDraws;
 
@@ -56,7 +56,6 @@ fn taps(radius: f64, sigma: f64, angle_deg: f64) -> (Vec<f64>, Vec<(isize, isize
     (kernel, offsets)
 }
 
-avx2_dispatch! {
 /// The corruption, in place. Returns whether the result is grey (every pixel R = G = B): then
 /// ImageMagick writes a greyscale PNG, which the reference handles only at 224×224 (the caller
 /// decides what that means at other sizes).
@@ -67,6 +66,14 @@ pub(super) fn motion_blur(
     severity: u8,
     draws: &mut dyn NoiseDraws,
 ) -> bool {
+    super::vectorized(
+        #[inline(always)]
+        || blur(rgb, width, height, severity, draws),
+    )
+}
+
+#[inline(always)]
+fn blur(rgb: &mut [u8], width: usize, height: usize, severity: u8, draws: &mut dyn NoiseDraws) -> bool {
     let (radius, sigma) = PARAMS[usize::from(severity) - 1];
     let angle = draws.uniform(-45.0, 45.0);
     let (kernel, offsets) = taps(radius, sigma, angle);
@@ -103,7 +110,6 @@ pub(super) fn motion_blur(
         }
     }
     rgb.chunks_exact(3).all(|p| p[0] == p[1] && p[1] == p[2])
-}
 }
 
 #[cfg(test)]

@@ -96,9 +96,16 @@ impl Gathered {
     }
 }
 
-avx2_dispatch! {
 /// The corruption on a square `size`×`size` image.
 pub(super) fn zoom_blur(rgb: &mut [u8], size: usize, severity: u8) {
+    super::vectorized(
+        #[inline(always)]
+        || blur(rgb, size, severity),
+    )
+}
+
+#[inline(always)]
+fn blur(rgb: &mut [u8], size: usize, severity: u8) {
     let stride = size * 3;
     let x: Vec<f32> = rgb.iter().map(|&v| (f64::from(v) / 255.0) as f32).collect();
     let mut sum = vec![0f32; x.len()];
@@ -133,7 +140,10 @@ pub(super) fn zoom_blur(rgb: &mut [u8], size: usize, severity: u8) {
             let (g0, h0, g1, h1) = (&rows[a].g[..n], &rows[a].h[..n], &rows[b].g[..n], &rows[b].h[..n]);
             let (wc0, wc1) = (&wc0[..n], &wc1[..n]);
             for k in 0..n {
-                let t = (g0[k] * r.w0) * wc0[k] + (h0[k] * r.w0) * wc1[k] + (g1[k] * r.w1) * wc0[k] + (h1[k] * r.w1) * wc1[k];
+                let t = (g0[k] * r.w0) * wc0[k]
+                    + (h0[k] * r.w0) * wc1[k]
+                    + (g1[k] * r.w1) * wc0[k]
+                    + (h1[k] * r.w1) * wc1[k];
                 out[k] += t as f32;
             }
         }
@@ -142,7 +152,6 @@ pub(super) fn zoom_blur(rgb: &mut [u8], size: usize, severity: u8) {
     for (o, (&v, &s)) in rgb.iter_mut().zip(x.iter().zip(&sum)) {
         *o = (((v + s) / n).clamp(0.0, 1.0) * 255.0) as u8;
     }
-}
 }
 
 #[cfg(test)]

@@ -1,0 +1,113 @@
+//! `pipeline bench perturbation`: what each perturbation adds to an episode's wall time.
+//!
+//! One task, one env, the policy's camera (agentview only, at a policy's size), the same actions:
+//! an episode is a reset, then per policy step a render of what the policy sees and an env step.
+//! It runs unperturbed, then with each hook: the camera viewpoint and the robot init pose (edits at
+//! reset) and the sensor noise of each of the five kinds at its costliest severity (per frame). The policy's own time is left out, so the overhead is measured against
+//! the cheapest episode there is; the goal is ≤ 5%.
+
+use crate::bench::bench_action;
+use anyhow::Result;
+use libero_schema::Suite;
+use libero_sim::bundle::BundleSet;
+use libero_sim::env::{EpisodeEdits, LiberoEnv};
+use libero_sim::image_noise::{NoiseRevision, SeededDraws, SensorNoise};
+use libero_sim::viewpoint::{self, ViewParams};
+use libero_udfs::policy_cameras::PolicyCameras;
+use std::path::Path;
+use std::time::Instant;
+
+#[derive(clap::Args)]
+pub struct PerturbationArgs {
+    #[arg(long, default_value = "libero_spatial")]
+    suite: Suite,
+    #[arg(long, default_value_t = 0)]
+    task: u32,
+    /// Policy steps per episode (after the reset).
+    #[arg(long, default_value_t = 60)]
+    steps: u32,
+    /// The policy camera's size (OpenVLA 224, openpi 224, LIBERO's default 128; lb2025 noise needs ≤ 256).
+    #[arg(long, default_value_t = 224)]
+    size: u32,
+    /// Interleaved repetitions; the median is printed.
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+}
+
+/// One configuration: its name, the env edits, and the noise on every frame.
+struct Case {
+    name: String,
+    edits: EpisodeEdits,
+    noise: Option<SensorNoise>,
+}
+
+pub fn run(bundles: &Path, args: PerturbationArgs) -> Result<()> {
+    let set = BundleSet::open(bundles)?;
+    let bundle = set.load(args.suite, args.task)?;
+    let mut env = LiberoEnv::new(&bundle)?;
+    let mut cameras = PolicyCameras::new(&mut env, args.size)?;
+    let view =
+        ViewParams { azimuth_deg: 30.0, elevation_deg: 15.0, distance_pct: 150.0, pan_deg: 4.0, tilt_deg: 356.0 };
+    let pose = viewpoint::plus_agentview(viewpoint::nominal_agentview(&bundle.task.problem)?, &view);
+    let c = &bundle.task.controller;
+    let q: [f64; 7] = std::array::from_fn(|i| c.initial_joint[i] + if i % 2 == 0 { 0.05 } else { -0.05 });
+    let mut cases = vec![
+        Case { name: "none".into(), edits: EpisodeEdits::default(), noise: None },
+        Case {
+            name: "camera viewpoint".into(),
+            edits: EpisodeEdits { agentview: Some(pose), ..Default::default() },
+            noise: None,
+        },
+        Case {
+            name: "robot init pose".into(),
+            edits: EpisodeEdits { robot_init_qpos: Some(q), ..Default::default() },
+            noise: None,
+        },
+    ];
+    // each kind at its costliest severity (motion, Gaussian, fog and glass blur grow with it; zoom
+    // blur peaks at severity 7, whose 41 zoom factors are the most)
+    for level in [10, 20, 27, 40, 50] {
+        let noise = SensorNoise::new(level, NoiseRevision::Lb2025).map_err(anyhow::Error::msg)?;
+        cases.push(Case {
+            name: format!("noise {level} ({})", noise.kind()),
+            edits: EpisodeEdits::default(),
+            noise: Some(noise),
+        });
+    }
+    let mut times: Vec<Vec<f64>> = vec![Vec::new(); cases.len()];
+    for _ in 0..args.repeats {
+        for (i, case) in cases.iter().enumerate() {
+            let t0 = Instant::now();
+            env.set_episode_edits(case.edits.clone())?;
+            env.reset(0, 0)?;
+            for t in 0..args.steps {
+                let mut images = cameras.capture(&mut env, false)?;
+                if let Some(noise) = &case.noise {
+                    let a = &mut images.agentview;
+                    noise
+                        .apply(&mut a.rgb, a.width as usize, a.height as usize, &mut SeededDraws::new(t as u64))
+                        .map_err(anyhow::Error::msg)?;
+                }
+                std::hint::black_box(&images);
+                env.step(bench_action(t))?;
+            }
+            times[i].push(t0.elapsed().as_secs_f64() * 1e3 / args.steps as f64);
+        }
+    }
+    let median = |v: &[f64]| {
+        let mut v = v.to_vec();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let base = median(&times[0]);
+    println!(
+        "{} task {}, {} policy steps per episode, agentview {}x{}, median of {} (reset + render + env step; no policy):",
+        args.suite, args.task, args.steps, args.size, args.size, args.repeats
+    );
+    println!("{:<26} {:>12} {:>10}", "perturbation", "ms per step", "overhead");
+    for (case, t) in cases.iter().zip(&times) {
+        let m = median(t);
+        println!("{:<26} {:>12.2} {:>9.1}%", case.name, m, 100.0 * (m - base) / base);
+    }
+    Ok(())
+}

@@ -7,35 +7,57 @@
 -- The rows are those of a LIBERO-Plus spec table (`pipeline specs --benchmark libero_plus`):
 -- `benchmark = 'libero_plus'`, `category` the authors' category of the variant, and the base rows
 -- (category null): the base tasks in LIBERO-Plus's own unperturbed env (its rounded nominal camera,
--- the same instruction mode), so a drop is the perturbation's alone. The base rate of a cell is
--- its suite's (pooled rows: every suite's base rows). The two rates are independent samples; the
--- interval is Newcombe's hybrid score interval (method 10 of Newcombe 1998) from the two Wilson
--- intervals: lo = d − √((p_b − l_b)² + (u_p − p_p)²), hi = d + √((u_b − p_b)² + (p_p − l_p)²).
+-- the same instruction mode).
+--
+-- Pairing. Every variant starts from init state 0 of its base task, so its twin is the base row of
+-- the same (task, init state, seed): the same start, unperturbed. When every variant of a cell has
+-- its twin (`paired`; base rows with --base-trials ≥ 1 give them), the base rate is the twins' and
+-- the interval for the drop is Newcombe's paired method 10; the drop then measures the
+-- perturbation alone, not the difference between init state 0 and the others. Otherwise the base
+-- rate is all of the suite's base rows and the interval Newcombe's hybrid score interval for
+-- independent proportions: lo = d − √((p_b − l_b)² + (u_p − p_p)²), hi = d + √((u_b − p_b)² + (p_p − l_p)²).
+-- `suite_base_rate` is always all of the suite's base rows (e.g. 50 init states per task).
 -- `published`: the LIBERO-Plus leaderboard's rates for the category (all suites pooled,
 -- data/published_libero.csv).
 CREATE OR REPLACE VIEW generalisation AS
 WITH plus AS (
-    SELECT base_suite, category, difficulty, scored_success, success_definition, episode_length_cap,
-           instruction_mode
+    SELECT base_suite, task_id, init_state_id, seed, category, difficulty, scored_success,
+           success_definition, episode_length_cap, instruction_mode
     FROM scored
     WHERE benchmark = 'libero_plus'
 ),
-base AS (
+variants AS (
+    -- each variant with its twin's outcome (null when the run has no twin for it)
+    SELECT p.base_suite, p.category, p.difficulty, p.scored_success AS s, b.scored_success AS t
+    FROM (SELECT * FROM plus WHERE category IS NOT NULL) p
+    LEFT JOIN (SELECT * FROM plus WHERE category IS NULL) b
+      ON b.base_suite = p.base_suite AND b.task_id = p.task_id AND b.init_state_id = p.init_state_id
+     AND b.seed = p.seed
+),
+suite_base AS (
     SELECT base_suite, count(*) AS n_total, sum(CAST(scored_success AS BIGINT)) AS n_success
     FROM plus WHERE category IS NULL GROUP BY base_suite
     UNION ALL
     SELECT 'all', count(*), sum(CAST(scored_success AS BIGINT)) FROM plus WHERE category IS NULL
 ),
+grouped AS (
+    SELECT base_suite, category, CAST(NULL AS INT) AS difficulty, s, t FROM variants
+    UNION ALL
+    SELECT 'all', category, NULL, s, t FROM variants
+    UNION ALL
+    SELECT 'all', category, difficulty, s, t FROM variants WHERE difficulty IS NOT NULL
+),
 cells AS (
-    SELECT base_suite, category, CAST(NULL AS INT) AS difficulty, count(*) AS n_total,
-           sum(CAST(scored_success AS BIGINT)) AS n_success
-    FROM plus WHERE category IS NOT NULL GROUP BY base_suite, category
-    UNION ALL
-    SELECT 'all', category, NULL, count(*), sum(CAST(scored_success AS BIGINT))
-    FROM plus WHERE category IS NOT NULL GROUP BY category
-    UNION ALL
-    SELECT 'all', category, difficulty, count(*), sum(CAST(scored_success AS BIGINT))
-    FROM plus WHERE category IS NOT NULL AND difficulty IS NOT NULL GROUP BY category, difficulty
+    SELECT base_suite, category, difficulty,
+           count(*) AS n_total,
+           sum(CAST(s AS BIGINT)) AS n_success,
+           count(t) AS n_pairs,
+           count(*) FILTER (WHERE t AND s) AS n11,
+           count(*) FILTER (WHERE t AND NOT s) AS n10,
+           count(*) FILTER (WHERE NOT t AND s) AS n01,
+           count(*) FILTER (WHERE NOT t AND NOT s) AS n00
+    FROM grouped
+    GROUP BY base_suite, category, difficulty
 ),
 published_cells AS (
     SELECT lower(perturbation) AS category,
@@ -45,14 +67,18 @@ published_cells AS (
     GROUP BY 1
 ),
 rated AS (
-    SELECT c.base_suite, c.category, c.difficulty, c.n_total, c.n_success,
-           CAST(c.n_success AS DOUBLE) / c.n_total AS p, wilson_lo(c.n_success, c.n_total) AS l,
+    SELECT c.*,
+           c.n_pairs = c.n_total AS paired,
+           CAST(c.n_success AS DOUBLE) / c.n_total AS p,
+           wilson_lo(c.n_success, c.n_total) AS l,
            wilson_hi(c.n_success, c.n_total) AS u,
-           b.n_total AS base_n, CAST(b.n_success AS DOUBLE) / b.n_total AS pb,
-           wilson_lo(b.n_success, b.n_total) AS lb, wilson_hi(b.n_success, b.n_total) AS ub,
+           b.n_total AS suite_base_n,
+           CAST(b.n_success AS DOUBLE) / b.n_total AS pb,
+           wilson_lo(b.n_success, b.n_total) AS lb,
+           wilson_hi(b.n_success, b.n_total) AS ub,
            pc.published
     FROM cells c
-    LEFT JOIN base b ON b.base_suite = c.base_suite
+    LEFT JOIN suite_base b ON b.base_suite = c.base_suite
     LEFT JOIN published_cells pc ON pc.category = lower(c.category) AND c.base_suite = 'all' AND c.difficulty IS NULL
 )
 SELECT base_suite,
@@ -63,11 +89,18 @@ SELECT base_suite,
        p AS success_rate,
        l AS ci_lo,
        u AS ci_hi,
-       base_n,
-       pb AS base_rate,
-       pb - p AS drop_from_base,
-       pb - p - sqrt(power(pb - lb, 2) + power(u - p, 2)) AS drop_lo,
-       pb - p + sqrt(power(ub - pb, 2) + power(p - l, 2)) AS drop_hi,
+       paired,
+       CASE WHEN paired THEN CAST(n11 + n10 AS DOUBLE) / n_pairs ELSE pb END AS base_rate,
+       CASE WHEN paired THEN n_pairs ELSE suite_base_n END AS base_n,
+       CASE WHEN paired THEN CAST(n10 - n01 AS DOUBLE) / n_pairs ELSE pb - p END AS drop_from_base,
+       CASE WHEN paired THEN newcombe_paired_lo(n11, n10, n01, n00)
+            ELSE pb - p - sqrt(power(pb - lb, 2) + power(u - p, 2)) END AS drop_lo,
+       CASE WHEN paired THEN newcombe_paired_hi(n11, n10, n01, n00)
+            ELSE pb - p + sqrt(power(ub - pb, 2) + power(p - l, 2)) END AS drop_hi,
+       CASE WHEN paired AND n01 + n10 > 0 THEN mcnemar_exact_p(n01, n10) END AS mcnemar_p,
+       n11, n10, n01, n00,
+       pb AS suite_base_rate,
+       suite_base_n,
        (SELECT min(success_definition) FROM plus) AS success_definition,
        (SELECT max(episode_length_cap) FROM plus) AS episode_cap,
        (SELECT min(instruction_mode) FROM plus) AS instruction_mode,

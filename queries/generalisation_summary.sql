@@ -4,7 +4,8 @@
 --                    weighted), comparable to it only when every category was run;
 --   mean_categories  the plain mean of the categories run (vla-eval's total);
 --   robust_avg       the plain mean of the categories run but Language (a third-party "Robust Avg.").
--- Reads the view `generalisation` (queries/generalisation.sql) and the `published` table.
+-- Rates rounded to 4 decimals (the leaderboard's have 3). Reads the view `generalisation`
+-- (queries/generalisation.sql) and the `published` table.
 WITH ours AS (
     SELECT max(success_rate) FILTER (WHERE category = 'Camera') AS camera,
            max(success_rate) FILTER (WHERE category = 'Robot') AS robot,
@@ -18,7 +19,7 @@ WITH ours AS (
            avg(success_rate) FILTER (WHERE category <> 'Language') AS robust_avg,
            sum(n_total) AS n_variants,
            count(*) AS n_categories,
-           max(base_rate) AS base_rate
+           max(suite_base_rate) AS base_rate
     FROM generalisation
     WHERE base_suite = 'all' AND difficulty IS NULL
 ),
@@ -36,16 +37,19 @@ theirs AS (
     WHERE benchmark = 'libero-plus' AND suite IS NULL
     GROUP BY 1
 )
-SELECT 'this run' AS model, camera, robot, language, light, background, noise, layout, total_weighted,
-       mean_categories, robust_avg, n_variants, n_categories, base_rate,
+SELECT 'this run' AS model, round(camera, 4) AS camera, round(robot, 4) AS robot, round(language, 4) AS language,
+       round(light, 4) AS light, round(background, 4) AS background, round(noise, 4) AS noise,
+       round(layout, 4) AS layout, round(total_weighted, 4) AS total_weighted,
+       round(mean_categories, 4) AS mean_categories, round(robust_avg, 4) AS robust_avg, n_variants, n_categories,
+       round(base_rate, 4) AS base_rate,
        CASE WHEN n_categories < 7 THEN 'categories not run are null; the totals cover the categories run only, '
                                        || 'so they are not comparable to the leaderboard''s'
             ELSE NULL END AS note
 FROM ours
 UNION ALL
 SELECT model || ' (published)', camera, robot, language, light, background, noise, layout, total_weighted,
-       (camera + robot + language + light + background + noise + layout) / 7,
-       (camera + robot + light + background + noise + layout) / 6,
+       round((camera + robot + language + light + background + noise + layout) / 7, 4),
+       round((camera + robot + light + background + noise + layout) / 6, 4),
        NULL, 7, NULL, 'LIBERO-Plus README leaderboard (10,030 variants, one episode each)'
 FROM theirs
 ORDER BY CASE WHEN model = 'this run' THEN 0 ELSE 1 END, total_weighted DESC NULLS LAST;

@@ -1,6 +1,7 @@
 -- Which failed episodes get a video (`pipeline videos`, `pipeline report`). Edit freely (run
 -- with LIBERO_QUERIES=<dir> to use an edited copy): the command renders whatever rows this
--- returns, one MP4 per row, named {suite}_task{task_id}_init{init_state_id}.mp4.
+-- returns, one MP4 per row, named {suite}_task{task_id}_init{init_state_id}.mp4 (`_v{variant}` before
+-- the extension for a perturbed episode).
 --
 -- Default, per suite: the first failed episode in (task_id, init_state_id, seed) order (the seed
 -- brief's rule), and the first episode of every failure mode. An episode picked for several

@@ -277,12 +277,37 @@ fn the_expert_control_is_unmoved_by_what_it_does_not_see() {
             _ => assert_eq!(differing, 0, "the expert's episode changed under a perturbation it cannot see: {row:?}"),
         }
     }
+    // A replay re-applies the robot init pose: it must retrace the stored end effector (within
+    // 1e-9 m, checked by `pipeline video`), and its file is the variant's own.
+    let key =
+        &sql_rows(&run, "SELECT episode_key FROM episodes WHERE category = 'Robot' ORDER BY 1 LIMIT 1", &[])[0][0];
+    let videos = d.join("videos");
+    let text = ok(pipeline(&["video", "--run", r, "--episode", key, "--out", videos.to_str().unwrap(), "--preview"]));
+    let variant = key.rsplit_once("/v").unwrap().1;
+    assert!(
+        std::fs::read_dir(&videos)
+            .unwrap()
+            .flatten()
+            .any(|e| e.file_name().to_string_lossy().ends_with(&format!("_v{variant}.mp4"))),
+        "{text}"
+    );
     let out = ok(pipeline(&["generalisation", "--run", r, "--out", d.join("out").to_str().unwrap()]));
     for c in ["Camera", "Robot", "Language", "Noise", "this run", "OpenVLA (published)"] {
         assert!(out.contains(c), "generalisation lacks {c}:\n{out}");
     }
     let csv = std::fs::read_to_string(d.join("out/generalisation.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 4 + 4, "{csv}");
+    // Every variant is paired with its twin (the base row of its task at init state 0), so the
+    // expert's drop under what it cannot see is exactly 0.
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = |row: &[&str], name: &str| row[header.iter().position(|h| *h == name).unwrap()].to_string();
+    for line in csv.lines().skip(1) {
+        let row: Vec<&str> = line.split(',').collect();
+        assert_eq!(col(&row, "paired"), "true", "{line}");
+        if col(&row, "category") != "Robot" {
+            assert_eq!(col(&row, "drop_from_base").parse::<f64>().unwrap(), 0.0, "{line}");
+        }
+    }
 }
 
 /// A spec file a user writes: perturbation columns on ordinary rows, run by a policy that sees.

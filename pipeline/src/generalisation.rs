@@ -1,7 +1,8 @@
 //! `pipeline generalisation --run RUN`: LIBERO-Plus scored by category. Per base suite × category
 //! (× difficulty when the spec has the authors' labels) the success rate with its Wilson interval
 //! and the drop from the same policy's base rate with an interval for the difference
-//! (`queries/generalisation.sql`); then this run's categories beside the published leaderboard with
+//! (`queries/generalisation.sql`: paired with each variant's unperturbed twin when the run has
+//! them); then this run's categories beside the published leaderboard with
 //! its three totals, labelled (`queries/generalisation_summary.sql`). The run holds a LIBERO-Plus
 //! spec table's rows (`pipeline specs --benchmark libero_plus`): the variants and the base rows.
 
@@ -57,7 +58,7 @@ pub fn run(args: Args) -> Result<()> {
         write_csv(&args.out.join("generalisation_summary.csv"), &summary)?;
         println!("success definition: {}", args.scoring.describe());
         let by_suite = arrow::compute::concat_batches(&cells[0].schema(), &cells)?;
-        let project: Vec<usize> = ["base_suite", "category", "difficulty", "n_total", "success_rate", "ci_lo", "ci_hi", "base_rate", "drop_from_base", "drop_lo", "drop_hi"]
+        let project: Vec<usize> = ["base_suite", "category", "difficulty", "n_total", "success_rate", "ci_lo", "ci_hi", "paired", "base_rate", "drop_from_base", "drop_lo", "drop_hi", "suite_base_rate"]
             .iter()
             .map(|c| by_suite.schema().index_of(c))
             .collect::<Result<_, _>>()?;

@@ -47,8 +47,39 @@ pub fn run(args: Args) -> Result<()> {
         for (policy, run_suites) in &warnings {
             warn_on_baseline(policy, run_suites);
         }
+        for location in &args.run {
+            let (ctx, _) = session::open(location, args.scoring.success, args.scoring.cap).await?;
+            note_perturbed(&ctx).await?;
+        }
         Ok(())
     })
+}
+
+/// Say so when a suite's rate pools perturbed episodes (spec perturbation columns): a LIBERO-Plus
+/// run's per-suite rate mixes every category with the base rows, and `pipeline generalisation`
+/// is the table that separates them.
+pub async fn note_perturbed(ctx: &datafusion::prelude::SessionContext) -> Result<()> {
+    let rows = ctx
+        .sql(
+            "SELECT suite, count(*) FILTER (WHERE variant_hash IS NOT NULL) AS perturbed, count(*) AS n \
+             FROM episodes GROUP BY suite HAVING count(*) FILTER (WHERE variant_hash IS NOT NULL) > 0 ORDER BY suite",
+        )
+        .await?
+        .collect()
+        .await?;
+    for b in &rows {
+        use arrow::array::AsArray;
+        use arrow::datatypes::Int64Type;
+        for i in 0..b.num_rows() {
+            eprintln!(
+                "note: {} pools {} perturbed episodes (spec perturbation columns) of {} in its rate; `pipeline generalisation` (LIBERO-Plus) or a query on perturbation_params separates them",
+                b.column(0).as_string::<i32>().value(i),
+                b.column(1).as_primitive::<Int64Type>().value(i),
+                b.column(2).as_primitive::<Int64Type>().value(i)
+            );
+        }
+    }
+    Ok(())
 }
 
 pub fn write_csv(path: &Path, batches: &[RecordBatch]) -> Result<()> {

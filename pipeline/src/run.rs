@@ -328,6 +328,12 @@ async fn print_results(location: &str, policy: &PolicySpec) -> Result<()> {
     let batches = session::queries::run(&ctx, session::queries::RESULTS).await?;
     println!("{}", arrow::util::pretty::pretty_format_batches(&batches)?);
     crate::results::warn_on_baseline(policy, &batches);
+    crate::results::note_perturbed(&ctx).await?;
+    if crate::generalisation::has_plus_rows(&ctx).await? {
+        let (_, summary) = crate::generalisation::tables(&ctx).await?;
+        println!("LIBERO-Plus by category (pipeline generalisation --run {location} for every cell):");
+        println!("{}", arrow::util::pretty::pretty_format_batches(&summary[..summary.len().min(1)])?);
+    }
     Ok(())
 }
 

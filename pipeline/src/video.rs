@@ -34,7 +34,8 @@ pub struct Args {
     /// Episode key(s) `suite/task_id/init_state_id/seed` (see `episodes.episode_key`).
     #[arg(long = "episode", required = true)]
     episodes: Vec<String>,
-    /// Output folder; files are named `{suite}_task{i}_init{j}.mp4`.
+    /// Output folder; files are named `{suite}_task{i}_init{j}.mp4` (`..._v{variant}.mp4` for a
+    /// perturbed episode).
     #[arg(long, default_value = "outputs/videos")]
     out: PathBuf,
     /// How the outcome and failure mode on the frames are scored.
@@ -182,7 +183,20 @@ fn render_selection_with(
 }
 
 fn video_name(ep: &StoredEpisode) -> String {
-    format!("{}_task{}_init{}.mp4", ep.suite, ep.task_id, ep.init_state_id)
+    video_file_name(&ep.suite, ep.task_id, ep.init_state_id, &ep.key)
+}
+
+/// `{suite}_task{i}_init{j}.mp4`, with `_v{variant}` before the extension for a perturbed episode
+/// (its key's `/v<variant>`), so the perturbed copies of one base episode get files of their own.
+pub fn video_file_name(
+    suite: &str,
+    task_id: impl std::fmt::Display,
+    init: impl std::fmt::Display,
+    key: &str,
+) -> String {
+    let variant = key.split('/').nth(4).and_then(|v| v.strip_prefix('v'));
+    let tail = variant.map(|v| format!("_v{v}")).unwrap_or_default();
+    format!("{suite}_task{task_id}_init{init}{tail}.mp4")
 }
 
 fn render_all(set: &BundleSet, episodes: &[StoredEpisode], render: &RenderArgs, out: &Path) -> Result<()> {

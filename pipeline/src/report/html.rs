@@ -354,7 +354,12 @@ fn section_videos(body: &mut String, subject: &RunTables, out: &Path, embed_limi
     let mut embedded = 0u64;
     let mut missing = 0;
     for s in &selection {
-        let file = format!("{}_task{}_init{}.mp4", get(s, "suite"), get(s, "task_id"), get(s, "init_state_id"));
+        let file = crate::video::video_file_name(
+            get(s, "suite"),
+            get(s, "task_id"),
+            get(s, "init_state_id"),
+            get(s, "episode_key"),
+        );
         let caption = format!(
             "<figcaption><b>{}</b> · {} · {}<br>{}</figcaption>",
             esc(get(s, "episode_key")),
@@ -493,8 +498,9 @@ fn section_generalisation(body: &mut String, runs: &[RunTables]) {
     body.push_str(
         "<h2 id=generalisation>Does the number survive perturbation? LIBERO-Plus by category</h2><p class=muted>\
          queries/generalisation.sql and generalisation_summary.sql. Each cell: success rate over the variants of \
-         the category (k/n), its drop from the base rate (the same tasks in LIBERO-Plus's unperturbed env) on \
-         hover with both 95% intervals. Rows: the suites, then all suites pooled, then per difficulty level \
+         the category (k/n); on hover its drop from the base rate with both 95% intervals, paired with each \
+         variant's twin (its base task from the same init state, unperturbed) when the run has them. The base \
+         column is all of the suite's base rows. Rows: the suites, then all suites pooled, then per difficulty level \
          when the spec carries the authors' labels. Light, Background and Layout need assets or bundles not \
          available here; the totals cover the categories run.</p>",
     );
@@ -519,7 +525,7 @@ fn section_generalisation(body: &mut String, runs: &[RunTables]) {
         }
         body.push_str("</tr>");
         for (label, cells) in &lines {
-            let base = cells.first().map(|c| get(c, "base_rate")).unwrap_or("");
+            let base = cells.first().map(|c| get(c, "suite_base_rate")).unwrap_or("");
             let base = if base.is_empty() { "-".to_string() } else { pct(base.parse().unwrap_or(f64::NAN)) };
             let _ = write!(body, "<tr><th>{}</th><td class=n>{base}</td>", esc(label));
             for c in CATEGORIES {
@@ -530,10 +536,11 @@ fn section_generalisation(body: &mut String, runs: &[RunTables]) {
                         let rb = (255.0 - 200.0 * rate) as u8;
                         let _ = write!(
                             body,
-                            "<td class=cell style='background:rgb({rb},{g},{rb})' title='{c}: {} [{}, {}]; drop {} [{}, {}]'>{}/{}</td>",
+                            "<td class=cell style='background:rgb({rb},{g},{rb})' title='{c}: {} [{}, {}]; drop from {} base {} [{}, {}]'>{}/{}</td>",
                             pct(rate),
                             pct(num(x, "ci_lo")),
                             pct(num(x, "ci_hi")),
+                            if get(x, "paired") == "true" { "its twins'" } else { "the suite's" },
                             pct(num(x, "drop_from_base")),
                             pct(num(x, "drop_lo")),
                             pct(num(x, "drop_hi")),
@@ -564,9 +571,12 @@ fn section_generalisation(body: &mut String, runs: &[RunTables]) {
                 ("mean_categories", "mean of categories"),
                 ("robust_avg", "mean without Language"),
                 ("n_variants", "variants"),
-                ("note", "note"),
             ],
         );
+        let summary = Rows::of(&r.generalisation_summary).rows;
+        if let Some(note) = summary.iter().find(|x| get(x, "model") == "this run").map(|x| get(x, "note")) {
+            let _ = write!(body, "<p class=muted>{}</p>", esc(note));
+        }
     }
 }
 

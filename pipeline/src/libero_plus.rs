@@ -1,4 +1,4 @@
-//! LIBERO-Plus's variants as spec rows: `pipeline specs --benchmark libero_plus`.
+//! LIBERO-Plus's variants as spec rows: `pipeline specs --benchmark libero-plus`.
 //!
 //! LIBERO-Plus (arXiv 2510.13626) names each of its 10,030 variants after its base task with a
 //! suffix that is the only encoding of the perturbation (`perturbation-spec.md` §B0). This module
@@ -250,12 +250,12 @@ struct ClassificationRow {
     difficulty_level: Option<i32>,
 }
 
-/// The options of `pipeline specs --benchmark libero_plus`.
+/// The options of `pipeline specs --benchmark libero-plus`.
 pub struct PlusOptions<'a> {
     pub suites: &'a [Suite],
     pub categories: Option<Vec<Category>>,
     pub instruction_mode: InstructionMode,
-    pub noise_revision: &'a str,
+    pub noise_revision: libero_sim::image_noise::NoiseRevision,
     pub seeds: &'a [u64],
     pub per_category: Option<usize>,
     pub classification: Option<&'a Path>,
@@ -305,12 +305,16 @@ pub fn spec_batch(bundles: &Path, opts: &PlusOptions) -> Result<RecordBatch> {
                 );
             }
             let text = match opts.instruction_mode {
-                InstructionMode::Bddl => &t.instructions.bddl,
-                InstructionMode::OfficialFilename => &t.instructions.filename,
+                InstructionMode::Bddl => t.instructions.bddl.clone(),
+                // what LIBERO-Plus's Task.language is for the unperturbed view
+                // (`<task>_view_0_0_100_0_0_initstate_0`)
+                InstructionMode::OfficialFilename => {
+                    format!("{} view 0 0 100 0 0 initstate 0", t.instructions.filename)
+                }
             };
             for init in 0..opts.base_trials {
                 for &seed in opts.seeds {
-                    rows.push_base(suite, t, init, seed, text, opts);
+                    rows.push_base(suite, t, init, seed, &text, opts);
                 }
             }
         }
@@ -472,7 +476,7 @@ impl Rows {
         };
         self.instruction.push(text);
         let (noise, revision) = match p {
-            Perturbation::Noise { level } => (Some(*level as i32), Some(opts.noise_revision.to_string())),
+            Perturbation::Noise { level } => (Some(*level as i32), Some(opts.noise_revision.name().to_string())),
             _ => (None, None),
         };
         self.noise.push(noise);

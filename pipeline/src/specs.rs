@@ -60,8 +60,8 @@ pub struct Args {
     instruction_mode: crate::libero_plus::InstructionMode,
     /// libero_plus: the sensor-noise code revision: lb2025 (the PyPI wheel's, and the 2025
     /// leaderboard's: glass blur over 224 px, fog's plasma cut at 256 px) or head (the image's size).
-    #[arg(long, default_value = "lb2025")]
-    noise_revision: String,
+    #[arg(long, default_value = "lb2025", value_parser = |s: &str| s.parse::<libero_sim::image_noise::NoiseRevision>())]
+    noise_revision: libero_sim::image_noise::NoiseRevision,
     /// libero_plus: at most N variants per suite and category, evenly spaced over it (a sample).
     #[arg(long)]
     per_category: Option<usize>,
@@ -79,6 +79,7 @@ pub struct Args {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum Benchmark {
     Libero,
+    #[value(alias = "libero_plus")]
     LiberoPlus,
 }
 
@@ -88,7 +89,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             suites: &args.suites,
             categories: (!args.categories.is_empty()).then(|| args.categories.clone()),
             instruction_mode: args.instruction_mode,
-            noise_revision: &args.noise_revision,
+            noise_revision: args.noise_revision,
             seeds: &args.seeds,
             per_category: args.per_category,
             classification: args.classification.as_deref(),

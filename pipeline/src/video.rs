@@ -31,7 +31,8 @@ pub struct Args {
     /// The run (folder or object-store URL).
     #[arg(long)]
     run: String,
-    /// Episode key(s) `suite/task_id/init_state_id/seed` (see `episodes.episode_key`).
+    /// Episode key(s) `suite/task_id/init_state_id/seed`, `.../v<variant>` for a perturbed episode
+    /// (see `episodes.episode_key`).
     #[arg(long = "episode", required = true)]
     episodes: Vec<String>,
     /// Output folder; files are named `{suite}_task{i}_init{j}.mp4` (`..._v{variant}.mp4` for a

@@ -176,7 +176,7 @@ pub fn episodes() -> SchemaRef {
                 "variant_hash",
                 DataType::Utf8,
                 true,
-                "the episode's perturbation variant: 12 hex digits of the sha256 of perturbation_params, part of episode_key; null for an episode whose spec row sets no perturbation column (and in runs before tables v6)",
+                "the episode's perturbation variant: 12 hex digits of the sha256 of perturbation_params, part of episode_key; null for an episode whose spec row sets no perturbation column and no `variant` name (and in runs before tables v6)",
             ),
             field(
                 "perturbation_params",

@@ -116,7 +116,9 @@ impl EpisodeSummary {
 /// sha256 of everything an episode starts from: the scene file's hash (from the bundle's
 /// provenance), the fixture poses of (seed, episode) and the init state row. Two episodes with the
 /// same hash start in the same state, whichever suite they belong to (a perturbation that only
-/// changes the instruction keeps it), so their outcomes can be compared pair by pair.
+/// changes the instruction keeps it), so their outcomes can be compared pair by pair. The spec's
+/// perturbation columns are not in it: a camera view or robot init pose changes what follows the
+/// start, not the start (`perturbation_params` says what they were).
 pub fn start_sha256(bundle: &libero_sim::bundle::TaskBundle, key: &EpisodeKey) -> Result<String, SimError> {
     use sha2::{Digest, Sha256};
     let mut h = Sha256::new();

@@ -118,7 +118,8 @@ impl EpisodePerturbation {
     pub fn needs_camera(&self) -> Option<&'static str> {
         if self.sensor_noise.is_some() {
             Some(SENSOR_NOISE)
-        } else if self.view.is_some() {
+        } else if self.view.is_some_and(|v| v != ViewParams::NOMINAL) {
+            // (the nominal view every LIBERO-Plus row carries moves the camera by its rounding only)
             Some("camera_*")
         } else {
             None
@@ -132,7 +133,14 @@ impl EpisodePerturbation {
             return None;
         }
         let mut m = serde_json::Map::new();
-        if let Some(v) = &self.view {
+        // -0.0 and 0.0 are one perturbation: one hash (adding 0.0 turns -0.0 into 0.0)
+        if let Some(v) = &self.view.map(|v| ViewParams {
+            azimuth_deg: v.azimuth_deg + 0.0,
+            elevation_deg: v.elevation_deg + 0.0,
+            distance_pct: v.distance_pct + 0.0,
+            pan_deg: v.pan_deg + 0.0,
+            tilt_deg: v.tilt_deg + 0.0,
+        }) {
             m.insert(
                 "camera".into(),
                 json!({"azimuth_deg": v.azimuth_deg, "elevation_deg": v.elevation_deg, "distance_pct": v.distance_pct,
@@ -140,7 +148,7 @@ impl EpisodePerturbation {
             );
         }
         if let Some(q) = &self.robot_init_qpos {
-            m.insert(ROBOT_INIT_QPOS.into(), json!(q));
+            m.insert(ROBOT_INIT_QPOS.into(), json!(q.map(|x| x + 0.0)));
         }
         if let Some(t) = &self.instruction {
             m.insert("instruction".into(), json!(t));
@@ -222,8 +230,10 @@ fn text(batch: &RecordBatch, name: &str, row: usize) -> Result<Option<String>, S
     if col.is_null(row) {
         return Ok(None);
     }
-    let cast = arrow::compute::cast(&col.slice(row, 1), &DataType::Utf8)
-        .map_err(|_| format!("column {name} has type {}, expected text", col.data_type()))?;
+    if !matches!(col.data_type(), DataType::Utf8 | DataType::LargeUtf8 | DataType::Utf8View) {
+        return Err(format!("column {name} has type {}, expected text", col.data_type()));
+    }
+    let cast = arrow::compute::cast(&col.slice(row, 1), &DataType::Utf8).map_err(|e| format!("{name}: {e}"))?;
     Ok(Some(cast.as_string::<i32>().value(0).to_string()))
 }
 

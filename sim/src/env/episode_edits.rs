@@ -102,8 +102,8 @@ impl LiberoEnv {
 
     /// The controller's reset-time cache for this episode, with the controller's rest pose set to
     /// match: the bundle's recorded snapshot, or, for a changed `init_qpos`, the kinematics of the
-    /// arm at rest there (fingers at the gripper's `init_qpos`), as robosuite's `reset()` leaves
-    /// them. Leaves the data to be overwritten by the init state.
+    /// arm at rest there (fingers at `qpos0`, see [`GRIPPER_INIT_QPOS`]), as robosuite's `reset()`
+    /// leaves them. Leaves the data to be overwritten by the init state.
     pub(super) fn reset_time_arm_state(&mut self) -> ArmState {
         let c = &self.bundle.task.controller;
         let Some(q) = self.edits.robot_init_qpos else {

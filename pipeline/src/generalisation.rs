@@ -26,14 +26,12 @@ pub struct Args {
 
 /// Does the session's run hold LIBERO-Plus rows?
 pub async fn has_plus_rows(ctx: &datafusion::prelude::SessionContext) -> Result<bool> {
-    let has_column = ctx.table("episodes").await?.schema().has_column_with_unqualified_name("benchmark")
-        && ctx.table("episodes").await?.schema().has_column_with_unqualified_name("category");
-    if !has_column {
+    let episodes = ctx.table("episodes").await?;
+    let schema = episodes.schema();
+    if !schema.has_column_with_unqualified_name("benchmark") || !schema.has_column_with_unqualified_name("category") {
         return Ok(false);
     }
-    let n = ctx.sql("SELECT count(*) FROM episodes WHERE benchmark = 'libero_plus'").await?.collect().await?;
-    Ok(n.first().map(|b| arrow::array::AsArray::as_primitive::<arrow::datatypes::Int64Type>(b.column(0)).value(0) > 0)
-        == Some(true))
+    session::counts_any(ctx, "SELECT count(*) FROM episodes WHERE benchmark = 'libero_plus'").await
 }
 
 /// The two tables of a run's session (the `generalisation` view stays defined on it).

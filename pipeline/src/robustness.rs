@@ -33,9 +33,7 @@ pub async fn tables(ctx: &datafusion::prelude::SessionContext) -> Result<(Vec<Re
 
 /// Does the session's run hold any perturbed suite?
 pub async fn has_perturbations(ctx: &datafusion::prelude::SessionContext) -> Result<bool> {
-    let n = ctx.sql("SELECT count(*) AS n FROM scored WHERE perturbation <> 'none'").await?.collect().await?;
-    Ok(n.first().map(|b| arrow::array::AsArray::as_primitive::<arrow::datatypes::Int64Type>(b.column(0)).value(0) > 0)
-        == Some(true))
+    session::counts_any(ctx, "SELECT count(*) AS n FROM scored WHERE perturbation <> 'none'").await
 }
 
 pub fn run(args: Args) -> Result<()> {

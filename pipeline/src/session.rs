@@ -265,6 +265,13 @@ async fn register_listing(
 
 /// Compute a view once and put its rows in its place, so later queries that read it (a summary,
 /// a selection) do not derive it again; returns the rows.
+/// Whether a `SELECT count(*) ...` query counts any row.
+pub async fn counts_any(ctx: &SessionContext, count_query: &str) -> Result<bool> {
+    let n = ctx.sql(count_query).await?.collect().await?;
+    Ok(n.first()
+        .is_some_and(|b| arrow::array::AsArray::as_primitive::<arrow::datatypes::Int64Type>(b.column(0)).value(0) > 0))
+}
+
 pub async fn materialize(ctx: &SessionContext, view: &str) -> Result<Vec<arrow::record_batch::RecordBatch>> {
     let df = ctx.table(view).await.with_context(|| format!("no view {view}"))?;
     let schema = Arc::new(df.schema().as_arrow().clone());

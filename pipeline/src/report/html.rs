@@ -255,19 +255,14 @@ fn section_heatmap(body: &mut String, runs: &[RunTables]) {
                 match tasks.iter().find(|x| get(x, "task_id") == t.to_string()) {
                     Some(x) => {
                         let rate = num(x, "success_rate");
-                        // white (0%) to green (100%)
-                        let g = (255.0 - 120.0 * rate) as u8;
-                        let rb = (255.0 - 200.0 * rate) as u8;
-                        let _ = write!(
-                            body,
-                            "<td class=cell style='background:rgb({rb},{g},{rb})' title='{} · {} [{}, {}]'>{}/{}</td>",
+                        let title = format!(
+                            "{} · {} [{}, {}]",
                             esc(get(x, "instruction")),
                             pct(rate),
                             pct(num(x, "ci_lo")),
-                            pct(num(x, "ci_hi")),
-                            get(x, "n_success"),
-                            get(x, "n_total")
+                            pct(num(x, "ci_hi"))
                         );
+                        rate_cell(body, x, &title);
                     }
                     None => body.push_str("<td class=cell>-</td>"),
                 }
@@ -276,6 +271,20 @@ fn section_heatmap(body: &mut String, runs: &[RunTables]) {
         }
         body.push_str("</table>");
     }
+}
+
+/// A heat-map cell: k/n of the row, shaded white (0%) to green (100%) by its `success_rate`,
+/// `title` on hover.
+fn rate_cell(body: &mut String, row: &BTreeMap<String, String>, title: &str) {
+    let rate = num(row, "success_rate");
+    let g = (255.0 - 120.0 * rate) as u8;
+    let rb = (255.0 - 200.0 * rate) as u8;
+    let _ = write!(
+        body,
+        "<td class=cell style='background:rgb({rb},{g},{rb})' title='{title}'>{}/{}</td>",
+        get(row, "n_success"),
+        get(row, "n_total")
+    );
 }
 
 fn section_failures(body: &mut String, runs: &[RunTables]) {
@@ -532,21 +541,17 @@ fn section_generalisation(body: &mut String, runs: &[RunTables]) {
                 match cells.iter().find(|x| get(x, "category") == c) {
                     Some(x) => {
                         let rate = num(x, "success_rate");
-                        let g = (255.0 - 120.0 * rate) as u8;
-                        let rb = (255.0 - 200.0 * rate) as u8;
-                        let _ = write!(
-                            body,
-                            "<td class=cell style='background:rgb({rb},{g},{rb})' title='{c}: {} [{}, {}]; drop from {} base {} [{}, {}]'>{}/{}</td>",
+                        let title = format!(
+                            "{c}: {} [{}, {}]; drop from {} base {} [{}, {}]",
                             pct(rate),
                             pct(num(x, "ci_lo")),
                             pct(num(x, "ci_hi")),
                             if get(x, "paired") == "true" { "its twins'" } else { "the suite's" },
                             pct(num(x, "drop_from_base")),
                             pct(num(x, "drop_lo")),
-                            pct(num(x, "drop_hi")),
-                            get(x, "n_success"),
-                            get(x, "n_total")
+                            pct(num(x, "drop_hi"))
                         );
+                        rate_cell(body, x, &title);
                     }
                     None => body.push_str("<td class=cell>-</td>"),
                 }

@@ -194,6 +194,30 @@ elif [ ! -f "$PLUS_GOLDEN/.complete" ]; then
 fi
 [ "$plus_suites" = 4 ] && ln -sfn "$PLUS_GOLDEN" data/plus_golden
 
+step "LIBERO-PRO robustness: the objects' footprint radii, and reference episodes for the parity tests"
+# robosuite's horizontal_radius per object class (LIBERO's and LIBERO-PRO's packages), beside
+# index.json: the placement perturbations need it, and the compiled scenes drop the sites it is read from.
+RADII_STAMP="$BUNDLES/.object-radii-$(sha256sum scripts/reference/pro_robustness_oracle.py | cut -c1-12)"
+if [ ! -f "$RADII_STAMP" ]; then
+  rm -f "$BUNDLES/object_radii.json" "$BUNDLES"/.object-radii-*
+  for v in "$VENV" "$PRO_VENV"; do
+    (cd scripts/reference && "$v/bin/python" pro_robustness_oracle.py radii "$BUNDLES/object_radii.json" \
+      2> >(grep -v "WARNING" >&2))
+  done
+  touch "$RADII_STAMP"
+fi
+PRO_ROBUSTNESS_GOLDEN="$CACHE/pro-robustness-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
+  scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/pro_robustness_oracle.py | sha256sum | cut -c1-12)"
+if [ "$plus_suites" != 4 ]; then
+  echo "  skipped: its cases use tasks of all four canonical suites (./setup.sh without --suites builds them)"
+elif [ ! -f "$PRO_ROBUSTNESS_GOLDEN/.complete" ]; then
+  rm -rf "$PRO_ROBUSTNESS_GOLDEN"
+  (cd scripts/reference && LIBERO_BUNDLES="$BUNDLES" "$VENV/bin/python" pro_robustness_oracle.py cases \
+    "$PRO_ROBUSTNESS_GOLDEN" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+  touch "$PRO_ROBUSTNESS_GOLDEN/.complete"
+fi
+[ "$plus_suites" = 4 ] && ln -sfn "$PRO_ROBUSTNESS_GOLDEN" data/pro_robustness_golden
+
 step "reference camera frames for the render-parity tests (MuJoCo 3.3.7, and 3.2.3 for the published look)"
 VENV323_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh | sha256sum | cut -c1-12)
 VENV323="$CACHE/ref-venv-mujoco323-$VENV323_KEY"

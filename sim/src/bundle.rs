@@ -93,7 +93,9 @@ impl BundleSet {
                 task_id,
                 available: if ids.is_empty() {
                     format!("none (build them with ./setup.sh --suites {suite})")
-                } else if (task_id as usize) < suite.n_tasks() as usize {
+                } else if (task_id as usize) < suite.n_tasks() as usize
+                    || suite.perturbation == Some(libero_schema::Perturbation::PlusLayout)
+                {
                     format!("{} only (build the whole suite with ./setup.sh --suites {suite})", ids.join(", "))
                 } else {
                     ids.join(", ")
@@ -353,7 +355,21 @@ pub struct TaskBundle {
     /// seed -> episode -> fixture root body -> pose.
     fixtures: BTreeMap<u64, Vec<BTreeMap<String, Pose>>>,
     pub provenance: serde_json::Value,
+    /// Each object's footprint radius (robosuite's `horizontal_radius`), by object name, from
+    /// `object_radii.json` beside `index.json` (written at set-up from LIBERO's object classes;
+    /// the compiled scene drops the sites it is read from). None when that file is absent: only
+    /// LIBERO-PRO's placement perturbations need it, and they refuse to run without it.
+    pub horizontal_radii: Option<BTreeMap<String, f64>>,
 }
+
+/// `object_radii.json`: `horizontal_radius` per LIBERO object class name.
+#[derive(Debug, Clone, Deserialize)]
+struct ObjectRadiiFile {
+    radii: BTreeMap<String, f64>,
+}
+
+/// The file of object radii of the bundle set a bundle directory (`<root>/<suite>/<NN>`) is in.
+pub const OBJECT_RADII_FILE: &str = "object_radii.json";
 
 impl TaskBundle {
     pub fn load(dir: impl AsRef<Path>) -> Result<Self, SimError> {
@@ -394,7 +410,20 @@ impl TaskBundle {
         if !dir.join("scene.xml").exists() {
             return Err(SimError::BundleCorrupt { path: dir.join("scene.xml"), detail: "missing".into() });
         }
-        Ok(TaskBundle { dir, task, init_states, fixtures, provenance })
+        let radii_path = dir.parent().and_then(Path::parent).map(|root| root.join(OBJECT_RADII_FILE));
+        let horizontal_radii = match radii_path.filter(|p| p.exists()) {
+            None => None,
+            Some(p) => {
+                let by_class: ObjectRadiiFile = read_json(&p)?;
+                Some(
+                    task.objects
+                        .iter()
+                        .filter_map(|(name, o)| by_class.radii.get(&o.cls).map(|r| (name.clone(), *r)))
+                        .collect(),
+                )
+            }
+        };
+        Ok(TaskBundle { dir, task, init_states, fixtures, provenance, horizontal_radii })
     }
 
     pub fn scene_path(&self) -> PathBuf {

@@ -30,6 +30,7 @@
 
 pub mod bundle;
 pub mod bundle_integrity;
+pub mod dark_noise;
 pub mod env;
 mod error;
 pub mod gl;

@@ -193,6 +193,9 @@ pub fn run_episode(
     };
     // Cameras only for policies that see, set up on the first step that asks.
     let mut cameras: Option<PolicyCameras> = None;
+    // LIBERO-PRO's dark noise: one frozen field per camera for the whole episode, made when the
+    // image size is first known.
+    let mut dark_fields: [Option<Vec<f64>>; 2] = [None, None];
     // The state after step t is what the policy sees before step t+1: read it once per step.
     let mut obs = env.observation();
     let mut contacts = env.gripper_contacts();
@@ -214,6 +217,21 @@ pub fn run_episode(
                                 if let Err(e) = noise.apply(&mut a.rgb, a.width as usize, a.height as usize, &mut draws)
                                 {
                                     summary.error = Some(EpisodeError { kind: "perturbation", message: e });
+                                    break;
+                                }
+                            }
+                            if let Some(dark) = &perturbation.dark_noise {
+                                for (i, image) in [&mut images.agentview, &mut images.wrist].into_iter().enumerate() {
+                                    if image.rgb.is_empty() {
+                                        continue;
+                                    }
+                                    let field = dark_fields[i]
+                                        .get_or_insert_with(|| dark.field(dark_noise_seed(key, i), image.rgb.len()));
+                                    if let Err(e) = dark.apply(&mut image.rgb, field) {
+                                        summary.error = Some(EpisodeError { kind: "perturbation", message: e });
+                                    }
+                                }
+                                if summary.error.is_some() {
                                     break;
                                 }
                             }
@@ -305,6 +323,14 @@ pub fn run_episode(
 pub fn noise_seed(key: &EpisodeKey, policy_step: u32) -> u64 {
     use sha2::{Digest, Sha256};
     let h = Sha256::digest(format!("{}/sensor_noise/{policy_step}", key.episode_key).as_bytes());
+    u64::from_le_bytes(h[..8].try_into().expect("8 bytes"))
+}
+
+/// Seed of LIBERO-PRO's dark-noise field of camera `camera` (0 agentview, 1 wrist, the reference's
+/// image-key order): fixed for the episode, as the reference's constant seed makes it.
+pub fn dark_noise_seed(key: &EpisodeKey, camera: usize) -> u64 {
+    use sha2::{Digest, Sha256};
+    let h = Sha256::digest(format!("{}/dark_noise/{camera}", key.episode_key).as_bytes());
     u64::from_le_bytes(h[..8].try_into().expect("8 bytes"))
 }
 

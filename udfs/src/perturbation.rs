@@ -10,6 +10,12 @@
 //! | `robot_init_qpos` (7 floats) | controller | the arm's reset configuration (`init_qpos`): the controller's null-space target and first-step cache ([`libero_sim::env::EpisodeEdits`]) |
 //! | `instruction_override` | policy input | the instruction the policy gets instead of the task's |
 //! | `sensor_noise` (1–50), `sensor_noise_revision` (`lb2025`, `head`) | observation | LIBERO-Plus's image corruption of the agentview image the policy sees ([`libero_sim::image_noise`]), its random draws seeded from the episode key and the step |
+//! | `camera_pos` (3), `camera_quat_wxyz` (4) | model edit after reset | LIBERO-PRO's raw `agentview` pose, written as given (not normalised) |
+//! | `light_ambient`, `light_diffuse`, `light_specular` | model edit after reset | LIBERO-PRO's lighting: every light on, each colour set broadcast to all lights ([`libero_sim::env::Lighting`]) |
+//! | `appearance_objects` (comma-separated names), `appearance_rgba` (4) | model edit after reset | LIBERO-PRO's object appearance: the objects' visual geoms and materials recoloured, textures dropped |
+//! | `image_brightness`, `image_noise_std` | observation | LIBERO-PRO's `dark_noise` on every camera image the policy sees ([`libero_sim::dark_noise`]), one frozen noise field per episode and camera |
+//! | `initial_pose_object`, `initial_pose_delta_xy` (2), `initial_pose_yaw_rad`, `initial_pose_min_delta` | state edit after `set_init_state` | LIBERO-PRO's initial pose: the object yawed (absolute) and shifted by a safe delta |
+//! | `runtime_move_object`, `runtime_move_delta_xy` (2), `runtime_move_min_delta`, `runtime_move_trigger_m` (0.09), `runtime_move_fallback_step` (160) | state edit before a step | LIBERO-PRO's runtime move: the object shifted once, when the gripper nears it or at the fallback step |
 //!
 //! The columns of a row, with its `variant` name if it has one, make the episode's *variant*: a
 //! hash that joins the episode key (`suite/task/init/seed/v<hash>`), so perturbed copies of one
@@ -19,9 +25,10 @@
 
 use arrow::array::{Array, AsArray, RecordBatch};
 use arrow::datatypes::{DataType, Float64Type};
-use libero_sim::env::EpisodeEdits;
+use libero_sim::dark_noise::DarkNoise;
+use libero_sim::env::{Appearance, EpisodeEdits, InitialPose, Lighting, ObjectShift, RuntimeMove};
 use libero_sim::image_noise::{NoiseRevision, SensorNoise};
-use libero_sim::viewpoint::{self, ViewParams};
+use libero_sim::viewpoint::{self, CameraPose, ViewParams};
 use serde_json::json;
 use sha2::{Digest, Sha256};
 
@@ -39,11 +46,39 @@ pub const SENSOR_NOISE: &str = "sensor_noise";
 pub const SENSOR_NOISE_REVISION: &str = "sensor_noise_revision";
 /// A descriptive variant name (e.g. the LIBERO-Plus task name); part of the variant hash.
 pub const VARIANT_NAME: &str = "variant";
+pub const CAMERA_POS: &str = "camera_pos";
+pub const CAMERA_QUAT: &str = "camera_quat_wxyz";
+pub const LIGHT_COLUMNS: [&str; 3] = ["light_ambient", "light_diffuse", "light_specular"];
+pub const APPEARANCE_OBJECTS: &str = "appearance_objects";
+pub const APPEARANCE_RGBA: &str = "appearance_rgba";
+pub const IMAGE_BRIGHTNESS: &str = "image_brightness";
+pub const IMAGE_NOISE_STD: &str = "image_noise_std";
+/// The columns of one object shift, by prefix (`initial_pose_*`, `runtime_move_*`).
+const SHIFT_SUFFIXES: [&str; 3] = ["object", "delta_xy", "min_delta"];
+pub const INITIAL_POSE_YAW: &str = "initial_pose_yaw_rad";
+pub const RUNTIME_MOVE_TRIGGER: &str = "runtime_move_trigger_m";
+pub const RUNTIME_MOVE_FALLBACK: &str = "runtime_move_fallback_step";
+/// LIBERO-PRO's defaults for a runtime move (`PerturbationRuntimeOptions`, as shipped).
+pub const DEFAULT_TRIGGER_M: f64 = 0.09;
+pub const DEFAULT_FALLBACK_STEP: u32 = 160;
 
 /// Every column this module reads; a spec column of another name is carried through untouched.
 pub fn reserved_columns() -> Vec<&'static str> {
     let mut out: Vec<&str> = CAMERA_COLUMNS.iter().map(|(n, _)| *n).collect();
     out.extend([ROBOT_INIT_QPOS, INSTRUCTION_OVERRIDE, SENSOR_NOISE, SENSOR_NOISE_REVISION, VARIANT_NAME]);
+    out.extend([CAMERA_POS, CAMERA_QUAT, APPEARANCE_OBJECTS, APPEARANCE_RGBA, IMAGE_BRIGHTNESS, IMAGE_NOISE_STD]);
+    out.extend(LIGHT_COLUMNS);
+    out.extend([
+        "initial_pose_object",
+        "initial_pose_delta_xy",
+        "initial_pose_min_delta",
+        INITIAL_POSE_YAW,
+        "runtime_move_object",
+        "runtime_move_delta_xy",
+        "runtime_move_min_delta",
+        RUNTIME_MOVE_TRIGGER,
+        RUNTIME_MOVE_FALLBACK,
+    ]);
     out
 }
 
@@ -54,6 +89,13 @@ pub struct EpisodePerturbation {
     pub robot_init_qpos: Option<[f64; 7]>,
     pub instruction: Option<String>,
     pub sensor_noise: Option<SensorNoise>,
+    /// LIBERO-PRO's raw agentview pose (not normalised).
+    pub camera_raw: Option<CameraPose>,
+    pub lighting: Option<Lighting>,
+    pub appearance: Option<Appearance>,
+    pub dark_noise: Option<DarkNoise>,
+    pub initial_pose: Option<InitialPose>,
+    pub runtime_move: Option<RuntimeMove>,
     /// The row's `variant` name, when it has one.
     pub variant_name: Option<String>,
 }
@@ -101,8 +143,89 @@ impl EpisodePerturbation {
             }
             None => {}
         }
+        p.read_pro_columns(extras, row)?;
         p.variant_name = text(extras, VARIANT_NAME, row)?;
         Ok(p)
+    }
+
+    /// The LIBERO-PRO robustness columns (`perturbation-spec.md` §C2).
+    fn read_pro_columns(&mut self, extras: &RecordBatch, row: usize) -> Result<(), String> {
+        match (floats::<3>(extras, CAMERA_POS, row)?, floats::<4>(extras, CAMERA_QUAT, row)?) {
+            (None, None) => {}
+            (Some(pos), Some(quat)) => {
+                if quat.iter().map(|x| x * x).sum::<f64>() < 1e-6 {
+                    return Err(format!("{CAMERA_QUAT} is zero: give a rotation quaternion (w, x, y, z)"));
+                }
+                if self.view.is_some() {
+                    return Err(format!(
+                        "{CAMERA_POS} with camera_* columns: a row sets the agentview either as a LIBERO-Plus view or as a raw pose, not both"
+                    ));
+                }
+                self.camera_raw = Some(CameraPose { pos, quat });
+            }
+            _ => return Err(format!("{CAMERA_POS} and {CAMERA_QUAT} go together: set both or neither")),
+        }
+        let light: Vec<Option<f64>> = LIGHT_COLUMNS.iter().map(|c| number(extras, c, row)).collect::<Result<_, _>>()?;
+        for (c, v) in LIGHT_COLUMNS.iter().zip(&light) {
+            if v.is_some_and(|v| !(0.0..=10.0).contains(&v)) {
+                return Err(format!("{c} = {} is out of range [0, 10]", v.unwrap()));
+            }
+        }
+        if light.iter().any(Option::is_some) {
+            let f = |i: usize| light[i].map(|v| v as f32);
+            self.lighting = Some(Lighting { ambient: f(0), diffuse: f(1), specular: f(2) });
+        }
+        match (text(extras, APPEARANCE_OBJECTS, row)?, floats::<4>(extras, APPEARANCE_RGBA, row)?) {
+            (None, None) => {}
+            (Some(objects), Some(rgba)) => {
+                let objects: Vec<String> =
+                    objects.split(',').map(|o| o.trim().to_string()).filter(|o| !o.is_empty()).collect();
+                if objects.is_empty() {
+                    return Err(format!("{APPEARANCE_OBJECTS} names no object"));
+                }
+                if rgba.iter().any(|c| !(0.0..=1.0).contains(c)) {
+                    return Err(format!("{APPEARANCE_RGBA} = {rgba:?}: each channel is in [0, 1]"));
+                }
+                self.appearance = Some(Appearance { objects, rgba: rgba.map(|c| c as f32) });
+            }
+            _ => return Err(format!("{APPEARANCE_OBJECTS} and {APPEARANCE_RGBA} go together: set both or neither")),
+        }
+        match (number(extras, IMAGE_BRIGHTNESS, row)?, number(extras, IMAGE_NOISE_STD, row)?) {
+            (None, None) => {}
+            (b, s) => {
+                let d = DarkNoise { brightness: b.unwrap_or(1.0) as f32, std: s.unwrap_or(0.0) };
+                d.validate()?;
+                self.dark_noise = Some(d);
+            }
+        }
+        if let Some(shift) = shift(extras, "initial_pose", row)? {
+            let yaw = number(extras, INITIAL_POSE_YAW, row)?;
+            if yaw.is_some_and(|y| y.abs() > 2.0 * std::f64::consts::PI) {
+                return Err(format!("{INITIAL_POSE_YAW} = {} is outside [-2π, 2π] rad", yaw.unwrap()));
+            }
+            self.initial_pose = Some(InitialPose { shift, yaw });
+        } else if number(extras, INITIAL_POSE_YAW, row)?.is_some() {
+            return Err(format!("{INITIAL_POSE_YAW} is set but initial_pose_object is not"));
+        }
+        if let Some(shift) = shift(extras, "runtime_move", row)? {
+            let trigger = number(extras, RUNTIME_MOVE_TRIGGER, row)?.unwrap_or(DEFAULT_TRIGGER_M);
+            let fallback = number(extras, RUNTIME_MOVE_FALLBACK, row)?.unwrap_or(DEFAULT_FALLBACK_STEP as f64);
+            if !(0.0..=2.0).contains(&trigger) {
+                return Err(format!("{RUNTIME_MOVE_TRIGGER} = {trigger} is out of range [0, 2] m"));
+            }
+            if fallback.fract() != 0.0 || !(0.0..=100_000.0).contains(&fallback) {
+                return Err(format!("{RUNTIME_MOVE_FALLBACK} = {fallback} is not a step number"));
+            }
+            self.runtime_move = Some(RuntimeMove { shift, trigger_distance: trigger, fallback_step: fallback as u32 });
+        } else if [RUNTIME_MOVE_TRIGGER, RUNTIME_MOVE_FALLBACK]
+            .iter()
+            .any(|c| extras.column_by_name(c).is_some_and(|col| !col.is_null(row)))
+        {
+            return Err(
+                "runtime_move_trigger_m / runtime_move_fallback_step are set but runtime_move_object is not".into()
+            );
+        }
+        Ok(())
     }
 
     /// Whether the row perturbs anything (a `variant` name alone perturbs nothing, but still
@@ -112,12 +235,26 @@ impl EpisodePerturbation {
             || self.robot_init_qpos.is_some()
             || self.instruction.is_some()
             || self.sensor_noise.is_some()
+            || self.camera_raw.is_some()
+            || self.lighting.is_some()
+            || self.appearance.is_some()
+            || self.dark_noise.is_some()
+            || self.initial_pose.is_some()
+            || self.runtime_move.is_some()
     }
 
     /// Whether the policy must see the agentview camera for this perturbation to mean anything.
     pub fn needs_camera(&self) -> Option<&'static str> {
         if self.sensor_noise.is_some() {
             Some(SENSOR_NOISE)
+        } else if self.dark_noise.is_some() {
+            Some("image_brightness/image_noise_std")
+        } else if self.camera_raw.is_some() {
+            Some(CAMERA_POS)
+        } else if self.lighting.is_some() {
+            Some("light_*")
+        } else if self.appearance.is_some() {
+            Some(APPEARANCE_OBJECTS)
         } else if self.view.is_some_and(|v| v != ViewParams::NOMINAL) {
             // (the nominal view every LIBERO-Plus row carries moves the camera by its rounding only)
             Some("camera_*")
@@ -156,6 +293,30 @@ impl EpisodePerturbation {
         if let Some(n) = &self.sensor_noise {
             m.insert(SENSOR_NOISE.into(), json!({"level": n.level, "revision": n.revision.name()}));
         }
+        if let Some(c) = &self.camera_raw {
+            m.insert("camera_raw".into(), json!({"pos": c.pos.map(|x| x + 0.0), "quat_wxyz": c.quat.map(|x| x + 0.0)}));
+        }
+        if let Some(l) = &self.lighting {
+            m.insert("lighting".into(), json!({"ambient": l.ambient, "diffuse": l.diffuse, "specular": l.specular}));
+        }
+        if let Some(a) = &self.appearance {
+            m.insert("appearance".into(), json!({"objects": a.objects, "rgba": a.rgba}));
+        }
+        if let Some(d) = &self.dark_noise {
+            m.insert("dark_noise".into(), json!({"brightness": d.brightness, "std": d.std}));
+        }
+        let shift = |s: &ObjectShift| json!({"object": s.object, "delta_xy": s.delta_xy.map(|x| x + 0.0), "min_delta": s.min_delta_norm + 0.0});
+        if let Some(p) = &self.initial_pose {
+            let mut v = shift(&p.shift);
+            v["yaw_rad"] = json!(p.yaw.map(|y| y + 0.0));
+            m.insert("initial_pose".into(), v);
+        }
+        if let Some(r) = &self.runtime_move {
+            let mut v = shift(&r.shift);
+            v["trigger_m"] = json!(r.trigger_distance + 0.0);
+            v["fallback_step"] = json!(r.fallback_step);
+            m.insert("runtime_move".into(), v);
+        }
         if let Some(v) = &self.variant_name {
             m.insert(VARIANT_NAME.into(), json!(v));
         }
@@ -192,6 +353,62 @@ impl EpisodePerturbation {
             p.sensor_noise = Some(SensorNoise::new(level, revision)?);
         }
         p.variant_name = v.get(VARIANT_NAME).and_then(|t| t.as_str()).map(str::to_string);
+        let field = |k: &str| -> Result<Option<serde_json::Value>, String> { Ok(v.get(k).cloned()) };
+        let parse = |x: serde_json::Value, what: &str| -> Result<serde_json::Value, String> {
+            if x.is_object() { Ok(x) } else { Err(format!("perturbation_params: {what} is not an object")) }
+        };
+        let de = |x: &serde_json::Value, k: &str| -> Result<serde_json::Value, String> {
+            x.get(k).cloned().ok_or_else(|| format!("perturbation_params: {k} missing"))
+        };
+        fn from<T: serde::de::DeserializeOwned>(x: serde_json::Value, what: &str) -> Result<T, String> {
+            serde_json::from_value(x).map_err(|e| format!("perturbation_params: {what}: {e}"))
+        }
+        if let Some(c) = field("camera_raw")? {
+            let c = parse(c, "camera_raw")?;
+            p.camera_raw =
+                Some(CameraPose { pos: from(de(&c, "pos")?, "pos")?, quat: from(de(&c, "quat_wxyz")?, "quat")? });
+        }
+        if let Some(l) = field("lighting")? {
+            let l = parse(l, "lighting")?;
+            p.lighting = Some(Lighting {
+                ambient: from(de(&l, "ambient")?, "ambient")?,
+                diffuse: from(de(&l, "diffuse")?, "diffuse")?,
+                specular: from(de(&l, "specular")?, "specular")?,
+            });
+        }
+        if let Some(a) = field("appearance")? {
+            let a = parse(a, "appearance")?;
+            p.appearance = Some(Appearance {
+                objects: from(de(&a, "objects")?, "objects")?,
+                rgba: from(de(&a, "rgba")?, "rgba")?,
+            });
+        }
+        if let Some(d) = field("dark_noise")? {
+            let d = parse(d, "dark_noise")?;
+            p.dark_noise = Some(DarkNoise {
+                brightness: from(de(&d, "brightness")?, "brightness")?,
+                std: from(de(&d, "std")?, "std")?,
+            });
+        }
+        let shift = |s: &serde_json::Value| -> Result<ObjectShift, String> {
+            Ok(ObjectShift {
+                object: from(de(s, "object")?, "object")?,
+                delta_xy: from(de(s, "delta_xy")?, "delta_xy")?,
+                min_delta_norm: from(de(s, "min_delta")?, "min_delta")?,
+            })
+        };
+        if let Some(i) = field("initial_pose")? {
+            let i = parse(i, "initial_pose")?;
+            p.initial_pose = Some(InitialPose { shift: shift(&i)?, yaw: from(de(&i, "yaw_rad")?, "yaw_rad")? });
+        }
+        if let Some(r) = field("runtime_move")? {
+            let r = parse(r, "runtime_move")?;
+            p.runtime_move = Some(RuntimeMove {
+                shift: shift(&r)?,
+                trigger_distance: from(de(&r, "trigger_m")?, "trigger_m")?,
+                fallback_step: from(de(&r, "fallback_step")?, "fallback_step")?,
+            });
+        }
         Ok(p)
     }
 
@@ -207,7 +424,15 @@ impl EpisodePerturbation {
             Some(view) => Some(viewpoint::plus_agentview(viewpoint::nominal_agentview(problem)?, view)),
             None => None,
         };
-        Ok(EpisodeEdits { agentview, robot_init_qpos: self.robot_init_qpos })
+        Ok(EpisodeEdits {
+            agentview,
+            robot_init_qpos: self.robot_init_qpos,
+            agentview_raw: self.camera_raw,
+            lighting: self.lighting,
+            appearance: self.appearance.clone(),
+            initial_pose: self.initial_pose.clone(),
+            runtime_move: self.runtime_move.clone(),
+        })
     }
 }
 
@@ -237,9 +462,9 @@ fn text(batch: &RecordBatch, name: &str, row: usize) -> Result<Option<String>, S
     Ok(Some(cast.as_string::<i32>().value(0).to_string()))
 }
 
-/// `robot_init_qpos`: a list (or fixed-size list) of 7 finite numbers.
-fn qpos(batch: &RecordBatch, row: usize) -> Result<Option<[f64; 7]>, String> {
-    let Some(col) = batch.column_by_name(ROBOT_INIT_QPOS) else { return Ok(None) };
+/// A list column of exactly `N` finite numbers (list, large list or fixed-size list).
+fn floats<const N: usize>(batch: &RecordBatch, name: &str, row: usize) -> Result<Option<[f64; N]>, String> {
+    let Some(col) = batch.column_by_name(name) else { return Ok(None) };
     if col.is_null(row) {
         return Ok(None);
     }
@@ -247,19 +472,45 @@ fn qpos(batch: &RecordBatch, row: usize) -> Result<Option<[f64; 7]>, String> {
         DataType::List(_) => col.as_list::<i32>().value(row),
         DataType::LargeList(_) => col.as_list::<i64>().value(row),
         DataType::FixedSizeList(_, _) => col.as_fixed_size_list().value(row),
-        other => return Err(format!("column {ROBOT_INIT_QPOS} has type {other}, expected a list of 7 numbers")),
+        other => return Err(format!("column {name} has type {other}, expected a list of {N} numbers")),
     };
     let values = arrow::compute::cast(&values, &DataType::Float64)
-        .map_err(|_| format!("column {ROBOT_INIT_QPOS} holds {}, expected numbers", values.data_type()))?;
+        .map_err(|_| format!("column {name} holds {}, expected numbers", values.data_type()))?;
     let values = values.as_primitive::<Float64Type>();
-    if values.len() != 7 || values.null_count() > 0 {
-        return Err(format!(
-            "{ROBOT_INIT_QPOS} has {} values ({} null), expected the 7 arm joint positions (rad)",
-            values.len(),
-            values.null_count()
-        ));
+    if values.len() != N || values.null_count() > 0 {
+        return Err(format!("{name} has {} values ({} null), expected {N} numbers", values.len(), values.null_count()));
     }
-    let q: [f64; 7] = std::array::from_fn(|i| values.value(i));
+    let out: [f64; N] = std::array::from_fn(|i| values.value(i));
+    if out.iter().any(|x| !x.is_finite()) {
+        return Err(format!("{name} = {out:?} is not finite"));
+    }
+    Ok(Some(out))
+}
+
+/// The `<prefix>_object`, `<prefix>_delta_xy` and `<prefix>_min_delta` columns of one object shift.
+fn shift(batch: &RecordBatch, prefix: &str, row: usize) -> Result<Option<ObjectShift>, String> {
+    let [object, delta, min] = SHIFT_SUFFIXES.map(|s| format!("{prefix}_{s}"));
+    let Some(name) = text(batch, &object, row)? else {
+        if floats::<2>(batch, &delta, row)?.is_some() || number(batch, &min, row)?.is_some() {
+            return Err(format!("{delta} / {min} are set but {object} is not"));
+        }
+        return Ok(None);
+    };
+    let delta_xy = floats::<2>(batch, &delta, row)?.ok_or_else(|| format!("{object} is set but {delta} is not"))?;
+    let min_delta_norm = number(batch, &min, row)?.unwrap_or(0.0);
+    if delta_xy.iter().any(|d| d.abs() > 1.0) || !(0.0..=1.0).contains(&min_delta_norm) {
+        return Err(format!("{delta} = {delta_xy:?} / {min} = {min_delta_norm}: shifts are at most 1 m"));
+    }
+    Ok(Some(ObjectShift { object: name.trim().to_string(), delta_xy, min_delta_norm }))
+}
+
+/// `robot_init_qpos`: a list (or fixed-size list) of 7 finite numbers.
+fn qpos(batch: &RecordBatch, row: usize) -> Result<Option<[f64; 7]>, String> {
+    let Some(q) =
+        floats::<7>(batch, ROBOT_INIT_QPOS, row).map_err(|e| format!("{e} (the 7 arm joint positions, rad)"))?
+    else {
+        return Ok(None);
+    };
     for (i, (&x, [lo, hi])) in q.iter().zip(PANDA_JOINT_RANGES).enumerate() {
         if !(lo..=hi).contains(&x) {
             return Err(format!("{ROBOT_INIT_QPOS}[{i}] = {x} is outside the Panda joint's range [{lo}, {hi}] rad"));
@@ -358,5 +609,68 @@ mod tests {
         assert!(
             err(vec![("instruction_override", Arc::new(StringArray::from(vec![" "])) as ArrayRef)]).contains("empty")
         );
+    }
+
+    fn list(values: Vec<f64>) -> ArrayRef {
+        let mut b = arrow::array::ListBuilder::new(arrow::array::Float64Builder::new());
+        b.values().append_slice(&values);
+        b.append(true);
+        Arc::new(b.finish())
+    }
+
+    #[test]
+    fn libero_pro_columns_read_back_from_their_canonical_json() {
+        let b = batch(vec![
+            ("light_ambient", Arc::new(Float64Array::from(vec![0.02])) as ArrayRef),
+            ("light_diffuse", Arc::new(Float64Array::from(vec![0.16])) as ArrayRef),
+            ("camera_pos", list(vec![0.48, 0.24, 1.62])),
+            ("camera_quat_wxyz", list(vec![0.6099232, 0.3594558, 0.3594558, 0.6099232])),
+            ("appearance_objects", Arc::new(StringArray::from(vec!["plate_1, basket_1"])) as ArrayRef),
+            ("appearance_rgba", list(vec![0.72, 0.63, 0.5, 1.0])),
+            ("image_brightness", Arc::new(Float64Array::from(vec![0.68])) as ArrayRef),
+            ("image_noise_std", Arc::new(Int32Array::from(vec![12])) as ArrayRef),
+            ("initial_pose_object", Arc::new(StringArray::from(vec!["akita_black_bowl_1"])) as ArrayRef),
+            ("initial_pose_delta_xy", list(vec![0.17, -0.06])),
+            ("initial_pose_yaw_rad", Arc::new(Float64Array::from(vec![0.785])) as ArrayRef),
+            ("runtime_move_object", Arc::new(StringArray::from(vec!["plate_1"])) as ArrayRef),
+            ("runtime_move_delta_xy", list(vec![0.17, 0.06])),
+            ("runtime_move_min_delta", Arc::new(Float64Array::from(vec![0.18])) as ArrayRef),
+        ]);
+        let p = EpisodePerturbation::from_row(&b, 0).unwrap();
+        assert_eq!(p.appearance.as_ref().unwrap().objects, ["plate_1", "basket_1"]);
+        assert_eq!(p.lighting.unwrap().specular, None);
+        let m = p.runtime_move.as_ref().unwrap();
+        assert_eq!((m.trigger_distance, m.fallback_step), (DEFAULT_TRIGGER_M, DEFAULT_FALLBACK_STEP));
+        assert_eq!(p.needs_camera(), Some("image_brightness/image_noise_std"));
+        let back = EpisodePerturbation::from_canonical(&p.canonical().unwrap()).unwrap();
+        assert_eq!(back, p);
+        let edits = p.env_edits("libero_tabletop_manipulation").unwrap();
+        assert_eq!(edits.agentview_raw.unwrap().quat[0], 0.6099232, "the raw quaternion is kept as given");
+        // moves alone need no camera
+        let moves = EpisodePerturbation { initial_pose: p.initial_pose.clone(), ..Default::default() };
+        assert_eq!(moves.needs_camera(), None);
+        assert!(moves.variant().is_some());
+    }
+
+    #[test]
+    fn libero_pro_columns_that_do_not_go_together_are_refused() {
+        let err = |cols: Vec<(&str, ArrayRef)>| EpisodePerturbation::from_row(&batch(cols), 0).unwrap_err();
+        assert!(err(vec![("camera_pos", list(vec![0.0, 0.0, 1.0]))]).contains("go together"));
+        assert!(
+            err(vec![
+                ("camera_pos", list(vec![0.0, 0.0, 1.0])),
+                ("camera_quat_wxyz", list(vec![1.0, 0.0, 0.0, 0.0])),
+                ("camera_azimuth_deg", Arc::new(Float64Array::from(vec![10.0])) as ArrayRef),
+            ])
+            .contains("not both")
+        );
+        assert!(err(vec![("appearance_rgba", list(vec![2.0, 0.0, 0.0, 1.0]))]).contains("appearance"));
+        assert!(err(vec![("initial_pose_delta_xy", list(vec![0.1, 0.0]))]).contains("initial_pose_object"));
+        assert!(
+            err(vec![("runtime_move_fallback_step", Arc::new(Int32Array::from(vec![10])) as ArrayRef)])
+                .contains("runtime_move_object")
+        );
+        assert!(err(vec![("image_noise_std", Arc::new(Float64Array::from(vec![-1.0])) as ArrayRef)]).contains("range"));
+        assert!(err(vec![("light_diffuse", Arc::new(Float64Array::from(vec![11.0])) as ArrayRef)]).contains("range"));
     }
 }

@@ -13,9 +13,11 @@
 //! checks both modes against the reference.
 
 mod episode_edits;
+mod object_moves;
 mod probe;
 
-pub use episode_edits::EpisodeEdits;
+pub use episode_edits::{Appearance, EpisodeEdits, Lighting};
+pub use object_moves::{AppliedMove, InitialPose, ObjectShift, RuntimeMove, candidate_deltas};
 pub use probe::{Box3, JointFrame, ObjectGeometry, SceneProbe, SiteFrame};
 
 use crate::SimError;
@@ -97,6 +99,8 @@ pub struct LiberoEnv {
     /// values they replace.
     edits: EpisodeEdits,
     nominal: episode_edits::Nominal,
+    /// What the episode's placement perturbations did so far.
+    moves: object_moves::MovesDone,
     /// `Some` between reset and the first substep: robosuite's stale controller cache.
     stale: Option<ArmState>,
     eef_site: usize,
@@ -210,6 +214,7 @@ impl LiberoEnv {
             reset_snapshot,
             edits: EpisodeEdits::default(),
             nominal,
+            moves: Default::default(),
             stale: None,
             eef_site,
             hand_body,
@@ -312,6 +317,9 @@ impl LiberoEnv {
         self.data.qpos_mut().copy_from_slice(&state[1..1 + nq]);
         self.data.qvel_mut().copy_from_slice(&state[1 + nq..]);
         self.data.forward();
+        // LIBERO-PRO's order after `set_init_state`: object edits, then lighting (the camera is set).
+        self.apply_initial_pose()?;
+        self.apply_look_edits()?;
         // LIBERO's `set_init_state` runs `_post_process()` once (env_wrapper.py:139-145).
         self.update_indicators();
         self.osc.reset();
@@ -341,6 +349,7 @@ impl LiberoEnv {
                 self.horizon
             )));
         }
+        self.maybe_runtime_move()?;
         let arm_action: [f64; 6] = std::array::from_fn(|i| action[i]);
         for k in 0..self.substeps {
             match self.mode {

@@ -776,11 +776,18 @@ if "category" in episodes.columns and episodes.filter(pl.col("benchmark") == "li
     by_category = (
         plus.filter(pl.col("category").is_not_null())
         .group_by("base_suite", "category")
-        .agg(rate=pl.col("success").cast(pl.Float64).mean(), n=pl.len())
+        .agg(
+            rate=pl.col("success").cast(pl.Float64).mean(),
+            n=pl.len(),
+            # an error row that cut the episode short of its cap (queries/score.sql's `errored`)
+            n_errors=(pl.col("error_kind").is_not_null() & (pl.col("n_policy_steps") < pl.col("max_steps"))).sum(),
+        )
         .join(base, on="base_suite", how="left")
         .with_columns(drop=pl.col("base") - pl.col("rate"))
     )
     display(by_category.pivot(on="category", index=["base_suite", "base"], values="rate").sort("base_suite"))
+    # error rows count as failures in the rates above: how many each cell holds
+    display(by_category.pivot(on="category", index="base_suite", values="n_errors").sort("base_suite"))
     pooled = plus.filter(pl.col("category").is_not_null())
     print(f"variant-weighted total over the categories run: {100 * pooled['success'].cast(pl.Float64).mean():.1f}% of {pooled.height} variants")
 else:

@@ -4,6 +4,7 @@
 --                    weighted), comparable to it only when every category was run;
 --   mean_categories  the plain mean of the categories run (vla-eval's total);
 --   robust_avg       the plain mean of the categories run but Language (a third-party "Robust Avg.").
+-- `n_errors`: how many of the variants run ended in an error row (counted as failures).
 -- Rates rounded to 4 decimals (the leaderboard's have 3). Reads the view `generalisation`
 -- (queries/generalisation.sql) and the `published` table.
 WITH ours AS (
@@ -18,6 +19,7 @@ WITH ours AS (
            avg(success_rate) AS mean_categories,
            avg(success_rate) FILTER (WHERE category <> 'Language') AS robust_avg,
            sum(n_total) AS n_variants,
+           sum(n_errors) AS n_errors,
            count(*) AS n_categories,
            max(suite_base_rate) AS base_rate
     FROM generalisation
@@ -40,7 +42,7 @@ theirs AS (
 SELECT 'this run' AS model, round(camera, 4) AS camera, round(robot, 4) AS robot, round(language, 4) AS language,
        round(light, 4) AS light, round(background, 4) AS background, round(noise, 4) AS noise,
        round(layout, 4) AS layout, round(total_weighted, 4) AS total_weighted,
-       round(mean_categories, 4) AS mean_categories, round(robust_avg, 4) AS robust_avg, n_variants, n_categories,
+       round(mean_categories, 4) AS mean_categories, round(robust_avg, 4) AS robust_avg, n_variants, n_errors, n_categories,
        round(base_rate, 4) AS base_rate,
        CASE WHEN n_categories < 7 THEN 'categories not run are null; the totals cover the categories run only, '
                                        || 'so they are not comparable to the leaderboard''s'
@@ -50,6 +52,6 @@ UNION ALL
 SELECT model || ' (published)', camera, robot, language, light, background, noise, layout, total_weighted,
        round((camera + robot + language + light + background + noise + layout) / 7, 4),
        round((camera + robot + light + background + noise + layout) / 6, 4),
-       NULL, 7, NULL, 'LIBERO-Plus README leaderboard (10,030 variants, one episode each)'
+       NULL, NULL, 7, NULL, 'LIBERO-Plus README leaderboard (10,030 variants, one episode each)'
 FROM theirs
 ORDER BY CASE WHEN model = 'this run' THEN 0 ELSE 1 END, total_weighted DESC NULLS LAST;

@@ -56,12 +56,29 @@ pub fn run(args: Args) -> Result<()> {
         write_csv(&args.out.join("generalisation_summary.csv"), &summary)?;
         println!("success definition: {}", args.scoring.describe());
         let by_suite = arrow::compute::concat_batches(&cells[0].schema(), &cells)?;
-        let project: Vec<usize> = ["base_suite", "category", "difficulty", "n_total", "success_rate", "ci_lo", "ci_hi", "paired", "base_rate", "drop_from_base", "drop_lo", "drop_hi", "suite_base_rate"]
+        let project: Vec<usize> = [
+            "base_suite",
+            "category",
+            "difficulty",
+            "n_total",
+            "n_errors",
+            "success_rate",
+            "ci_lo",
+            "ci_hi",
+            "paired",
+            "base_rate",
+            "base_n_errors",
+            "drop_from_base",
+            "drop_lo",
+            "drop_hi",
+            "suite_base_rate",
+        ]
             .iter()
             .map(|c| by_suite.schema().index_of(c))
             .collect::<Result<_, _>>()?;
         println!("{}", arrow::util::pretty::pretty_format_batches(&[by_suite.project(&project)?])?);
         println!("{}", arrow::util::pretty::pretty_format_batches(&summary)?);
+        println!("(n_errors, base_n_errors: episodes that ended in an error row, counted as failures in the rates)");
         println!(
             "wrote {0}/generalisation.csv (per suite × category, with intervals) and {0}/generalisation_summary.csv",
             args.out.display()

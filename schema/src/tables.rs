@@ -170,7 +170,7 @@ pub fn episodes() -> SchemaRef {
                 "perturbation",
                 DataType::Utf8,
                 true,
-                "LIBERO-PRO perturbation of the suite: none, swap, object, lan, task, env; derived from the suite name. Null in runs written before tables v4 (the queries derive it there)",
+                "perturbation of the suite, derived from its name: none, LIBERO-PRO's swap, object, lan, task, env, or LIBERO-Plus's plus_layout (a displaced-object layout variant's own scene). Null in runs written before tables v4 (the queries derive it there)",
             ),
             field(
                 "variant_hash",

@@ -233,3 +233,69 @@ fn a_placement_without_the_radius_table_or_of_an_unknown_object_is_refused() {
         .to_string();
     assert!(err.contains("setup.sh"), "{err}");
 }
+
+/// The spec rows: five cases and a base row per (task, init state, seed), our rules' objects on the
+/// tasks whose choice is plain, the shipped constants, and the two cases not run refused with why.
+#[test]
+fn robustness_specs_hold_five_cases_with_paired_base_rows() {
+    use arrow::array::{Array, AsArray};
+    let d = test_dir("pro_robustness", "specs");
+    let path = d.join("specs.parquet");
+    let p = path.to_str().unwrap();
+    ok(pipeline(&["specs", "--benchmark", "libero-pro-robustness", "--trials", "2", "--seeds", "7", "-o", p]));
+    let file = std::fs::File::open(&path).unwrap();
+    let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file).unwrap().build().unwrap();
+    let mut per_case: std::collections::BTreeMap<String, usize> = Default::default();
+    let mut objects: std::collections::BTreeMap<(String, i32, String), String> = Default::default();
+    for batch in reader {
+        let b = batch.unwrap();
+        let s = |n: &str| b.column_by_name(n).unwrap().as_string::<i32>().clone();
+        let (suite, category, appearance, moved) =
+            (s("suite"), s("category"), s("appearance_objects"), s("runtime_move_object"));
+        let task = b.column_by_name("task_id").unwrap().as_primitive::<arrow::datatypes::Int32Type>().clone();
+        let brightness =
+            b.column_by_name("image_brightness").unwrap().as_primitive::<arrow::datatypes::Float64Type>().clone();
+        for i in 0..b.num_rows() {
+            let c = if category.is_null(i) { "base".to_string() } else { category.value(i).to_string() };
+            *per_case.entry(c.clone()).or_default() += 1;
+            let key = |what: &str| (suite.value(i).to_string(), task.value(i), what.to_string());
+            if appearance.is_valid(i) {
+                objects.insert(key("destination"), appearance.value(i).to_string());
+            }
+            if moved.is_valid(i) {
+                objects.insert(key("target"), moved.value(i).to_string());
+            }
+            if c == "visual_noise_glare" {
+                assert_eq!(brightness.value(i), 0.68);
+            } else {
+                assert!(brightness.is_null(i));
+            }
+        }
+    }
+    let want: std::collections::BTreeMap<String, usize> = [
+        "base",
+        "visual_noise_glare",
+        "camera_view_angle",
+        "runtime_object_move",
+        "object_texture",
+        "initial_pose_position_angle",
+    ]
+    .into_iter()
+    .map(|c| (c.to_string(), 40 * 2))
+    .collect();
+    assert_eq!(per_case, want);
+    let o = |suite: &str, task: i32, what: &str| objects[&(suite.to_string(), task, what.to_string())].clone();
+    assert_eq!(
+        (o("libero_spatial", 0, "target"), o("libero_spatial", 0, "destination")),
+        ("akita_black_bowl_1".into(), "plate_1".into())
+    );
+    assert_eq!(o("libero_object", 3, "destination"), "basket_1", "a region names the object it belongs to");
+    assert_eq!(o("libero_goal", 0, "target"), "wooden_cabinet_1", "an articulation goal targets its fixture");
+    assert_eq!(o("libero_goal", 5, "destination"), "plate_1", "a table region falls back to the target");
+    assert_eq!(o("libero_10", 2, "target"), "moka_pot_1", "the first placed object, not the stove turned on");
+    for (case, why) in [("object_shape", "no-op"), ("view_occlusion", "not built"), ("glare", "unknown")] {
+        let out = pipeline(&["specs", "--benchmark", "libero-pro-robustness", "--cases", case, "-o", p]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(why), "{case}: {err}");
+    }
+}

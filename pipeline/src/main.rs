@@ -12,6 +12,7 @@ mod compare;
 mod failures;
 mod generalisation;
 mod libero_plus;
+mod libero_pro_robustness;
 mod media;
 mod published;
 mod report;

@@ -238,3 +238,72 @@ fn cost_per_frame_by_kind() {
         }
     }
 }
+
+/// lb2025 fog needs a 256×256 image and lb2025 glass blur 224 or more: a spec asking for them at a
+/// policy's 64 px camera is refused by `pipeline run` before any episode, each such row named
+/// with its level, the camera size and the fix; the same levels under `head`, and the other
+/// kinds, pass the check (and run).
+#[test]
+fn noise_the_reference_cannot_apply_at_the_policy_camera_size_stops_the_run() {
+    use arrow::array::{ArrayRef, Int32Array, Int64Array, RecordBatch, StringArray};
+    use libero_e2e::{ok, pipeline};
+    use std::sync::Arc;
+    use tch::{CModule, Device, Kind, Tensor};
+    let d = libero_e2e::test_dir("noise", "preflight");
+    let (file, size) = (d.join("model.pt"), 64);
+    let inputs = [
+        Tensor::rand([1, 3, size, size], (Kind::Float, Device::Cpu)),
+        Tensor::rand([1, 8], (Kind::Float, Device::Cpu)),
+    ];
+    CModule::create_by_tracing("Toy", "forward", &inputs, &mut |x| {
+        let mean = x[0].mean_dim([1i64, 2, 3].as_slice(), false, Kind::Float).unsqueeze(1);
+        vec![(mean * 0.0 + x[1].narrow(1, 0, 7) * 0.0).unsqueeze(1)]
+    })
+    .unwrap()
+    .save(&file)
+    .unwrap();
+    std::fs::write(
+        d.join("model.json"),
+        format!(r#"{{"inputs": ["agentview", "state"], "image_size": {size}, "preprocessing": "rot180", "chunk_size": 1, "replan_steps": 1}}"#),
+    )
+    .unwrap();
+    let specs = |name: &str, levels: &[i32], revision: &str| {
+        let n = levels.len();
+        let batch = RecordBatch::try_from_iter([
+            ("suite", Arc::new(StringArray::from(vec!["libero_spatial"; n])) as ArrayRef),
+            ("task_id", Arc::new(Int32Array::from(vec![0; n]))),
+            ("init_state_id", Arc::new(Int32Array::from(vec![0; n]))),
+            ("seed", Arc::new(Int64Array::from(vec![7; n]))),
+            ("sensor_noise", Arc::new(Int32Array::from(levels.to_vec()))),
+            ("sensor_noise_revision", Arc::new(StringArray::from(vec![revision; n]))),
+        ])
+        .unwrap();
+        let path = d.join(name);
+        std::fs::write(&path, libero_udfs::run_store::parquet_bytes(&batch, None).unwrap()).unwrap();
+        path
+    };
+    let policy = format!("torchscript:{}", file.display());
+    let bad = specs("bad.parquet", &[13, 35, 47, 23], "lb2025");
+    let out = pipeline(&["run", bad.to_str().unwrap(), "--out", d.join("bad").to_str().unwrap(), "--policy", &policy]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("2 row(s)") && err.contains("no episode was started"), "{err}");
+    assert!(err.contains("row 1 (") && err.contains("sensor_noise 35 (fog severity 5, revision lb2025)"), "{err}");
+    assert!(err.contains("row 2 (") && err.contains("sensor_noise 47 (glass_blur severity 7"), "{err}");
+    assert!(err.contains("64x64 camera") && err.contains("256x256") && err.contains("'head'"), "{err}");
+    assert!(!err.contains("row 0 (") && !err.contains("row 3 ("), "only the rows the reference cannot apply: {err}");
+    assert!(!d.join("bad/episodes").exists(), "an episode started");
+    // under `head` the same levels apply at 64 px: the run goes ahead
+    let good = specs("good.parquet", &[35, 47], "head");
+    ok(pipeline(&[
+        "run",
+        good.to_str().unwrap(),
+        "--out",
+        d.join("good").to_str().unwrap(),
+        "--policy",
+        &policy,
+        "--max-steps",
+        "2",
+    ]));
+    std::fs::remove_dir_all(&d).unwrap();
+}

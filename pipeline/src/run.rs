@@ -80,6 +80,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             args.policy.name()
         );
     }
+    check_noise_sizes(&args, &specs)?;
     // A bundle file damaged since the set-up stops the run here, named, not in every episode.
     let tasks: BTreeSet<(Suite, u32)> =
         specs.keys.iter().filter_map(|k| Some((k.suite.parse().ok()?, k.task_id as u32))).collect();
@@ -185,6 +186,57 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         }
         print_results(&args.out, &args.policy).await
     })
+}
+
+/// Spec rows whose sensor noise the reference cannot apply at the policy's camera size (lb2025
+/// fog needs 256×256, lb2025 glass blur 224 or more; `SensorNoise::check_size`) stop the run here,
+/// before any episode, each named with its level and the fix, instead of becoming one error row
+/// per episode. The size is the policy's own (`Policy::camera_size`), so the policy is built once
+/// here (only when some row has sensor noise; a batched model stays loaded for the episodes).
+fn check_noise_sizes(args: &Args, specs: &specs::Specs) -> Result<()> {
+    use libero_udfs::perturbation::{EpisodePerturbation, SENSOR_NOISE};
+    if !args.policy.sees_cameras() || !specs.extras.iter().any(|c| c == SENSOR_NOISE) {
+        return Ok(());
+    }
+    let schema = specs.batch.schema();
+    let columns: Vec<usize> = specs.extras.iter().map(|c| schema.index_of(c)).collect::<Result<_, _>>()?;
+    let extras = specs.batch.project(&columns)?;
+    let mut noisy = Vec::new();
+    for r in 0..extras.num_rows() {
+        if let Some(noise) = EpisodePerturbation::from_row(&extras, r).map_err(anyhow::Error::msg)?.sensor_noise {
+            noisy.push((r, noise));
+        }
+    }
+    if noisy.is_empty() {
+        return Ok(());
+    }
+    let Some(size) = args.policy.instantiate()?.camera_size() else { return Ok(()) };
+    let bad: Vec<String> = noisy
+        .iter()
+        .filter_map(|(r, n)| {
+            let why = n.check_size(size as usize, size as usize).err()?;
+            Some(format!(
+                "row {r} ({}): sensor_noise {} ({} severity {}, revision {}) on the policy's {size}x{size} camera: {why}",
+                specs.keys[*r].episode_key,
+                n.level,
+                n.kind(),
+                n.severity(),
+                n.revision
+            ))
+        })
+        .collect();
+    if bad.is_empty() {
+        return Ok(());
+    }
+    let n = bad.len();
+    let shown: Vec<String> = bad.into_iter().take(10).collect();
+    let more = if n > 10 { format!("\n  ... and {} more", n - 10) } else { String::new() };
+    bail!(
+        "spec file {}: {n} row(s) ask for sensor noise the reference cannot apply at the policy {}'s {size}x{size} camera; no episode was started:\n  {}{more}\nFix: a policy whose camera is 256x256 (as OpenVLA's and the published LIBERO-Plus loops render; lb2025 glass blur needs at least 224), sensor_noise_revision = 'head' (LIBERO-Plus after eaf6577: fog up to 256 and glass blur at the image's size), or drop those rows.",
+        args.specs.display(),
+        args.policy.name(),
+        shown.join("\n  ")
+    )
 }
 
 /// Run the pending episodes through the rollout UDF, then record what this invocation did.

@@ -154,6 +154,9 @@ impl SensorNoise {
         if width == 0 || height == 0 || rgb.len() != width * height * 3 {
             return refuse(format!("expected {} bytes of RGB8, got {}", width * height * 3, rgb.len()));
         }
+        if let Err(why) = self.check_size(width, height) {
+            return refuse(why);
+        }
         let s = self.severity();
         match self.level {
             1..=10 => {
@@ -168,37 +171,10 @@ impl SensorNoise {
                 }
             }
             11..=20 => gaussian::gaussian_blur(rgb, width, height, s),
-            21..=30 => {
-                if width != height {
-                    return refuse(
-                        "zoom blur needs a square image (the reference crops both axes with the height's bounds)"
-                            .into(),
-                    );
-                }
-                zoom_blur::zoom_blur(rgb, width, s);
-            }
-            31..=40 => {
-                let m = fog::MAPSIZE;
-                match self.revision {
-                    NoiseRevision::Lb2025 if (width, height) != (m, m) => {
-                        return refuse(format!(
-                            "lb2025 fog adds plasma[:{m}, :{m}], which broadcasts only onto {m}x{m} (head takes \
-                             the image's size)"
-                        ));
-                    }
-                    NoiseRevision::Head if width > m || height > m => {
-                        return refuse(format!("fog's plasma is {m}x{m}; the image must not be larger"));
-                    }
-                    _ => fog::fog(rgb, width, height, s, draws),
-                }
-            }
+            21..=30 => zoom_blur::zoom_blur(rgb, width, s),
+            31..=40 => fog::fog(rgb, width, height, s, draws),
             _ => {
                 let ends = match self.revision {
-                    NoiseRevision::Lb2025 if width < 224 || height < 224 => {
-                        return refuse(
-                            "lb2025 glass blur shuffles up to a hard-coded 224 and indexes past a smaller image".into(),
-                        );
-                    }
                     NoiseRevision::Lb2025 => (224, 224),
                     NoiseRevision::Head => (height, width),
                 };
@@ -206,6 +182,29 @@ impl SensorNoise {
             }
         }
         Ok(())
+    }
+
+    /// Whether the reference can corrupt a `width`×`height` image at this level and revision
+    /// (known from the size alone, before any episode): zoom blur needs a square image, fog at
+    /// most 256×256 (exactly 256×256 in lb2025), lb2025 glass blur at least 224×224. The error
+    /// says why; [`SensorNoise::apply`] refuses the same sizes.
+    pub fn check_size(&self, width: usize, height: usize) -> Result<(), String> {
+        let m = fog::MAPSIZE;
+        match (self.kind(), self.revision) {
+            ("zoom_blur", _) if width != height => {
+                Err("zoom blur needs a square image (the reference crops both axes with the height's bounds)".into())
+            }
+            ("fog", NoiseRevision::Lb2025) if (width, height) != (m, m) => Err(format!(
+                "lb2025 fog adds plasma[:{m}, :{m}], which broadcasts only onto {m}x{m} (head takes the image's size)"
+            )),
+            ("fog", NoiseRevision::Head) if width > m || height > m => {
+                Err(format!("fog's plasma is {m}x{m}; the image must not be larger"))
+            }
+            ("glass_blur", NoiseRevision::Lb2025) if width < 224 || height < 224 => {
+                Err("lb2025 glass blur shuffles up to a hard-coded 224 and indexes past a smaller image".into())
+            }
+            _ => Ok(()),
+        }
     }
 }
 

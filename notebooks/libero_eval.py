@@ -740,9 +740,15 @@ display(suite_sort(drop).sort("model", maintain_order=True))
 # interval for each drop (paired for `lan`), and the report shows both.
 
 # %%
-if "perturbation" in episodes.columns and episodes.filter(pl.col("perturbation").fill_null("none") != "none").height:
+# LIBERO-Plus's layout suites (perturbation `plus_layout`) are not LIBERO-PRO: left out here
+pro_episodes = (
+    episodes.filter(pl.col("perturbation").fill_null("none") != "plus_layout")
+    if "perturbation" in episodes.columns
+    else episodes
+)
+if "perturbation" in pro_episodes.columns and pro_episodes.filter(pl.col("perturbation").fill_null("none") != "none").height:
     cells = (
-        episodes.with_columns(pl.col("base_suite").fill_null(pl.col("suite")), pl.col("perturbation").fill_null("none"))
+        pro_episodes.with_columns(pl.col("base_suite").fill_null(pl.col("suite")), pl.col("perturbation").fill_null("none"))
         .group_by("base_suite", "perturbation")
         .agg(rate=pl.col("success").cast(pl.Float64).mean(), n=pl.len())
     )

@@ -23,8 +23,13 @@
 -- drop mixes the perturbation with that change (run both with `--instruction bddl` to separate
 -- them). `published`: the LIBERO-PRO leaderboard's rates for the cell (data/published_libero.csv;
 -- the authors call swap "position", lan "semantic", env "environment").
+-- LIBERO-Plus's layout suites (`perturbation = 'plus_layout'`, `<suite>_plus_layout`) are not LIBERO-PRO:
+-- `generalisation` scores them, with the rest of LIBERO-Plus; they are left out here.
 CREATE OR REPLACE VIEW robustness AS
-WITH cells AS (
+WITH pro AS (
+    SELECT * FROM scored WHERE perturbation <> 'plus_layout'
+),
+cells AS (
     SELECT base_suite,
            perturbation,
            count(*) AS n_total,
@@ -33,7 +38,7 @@ WITH cells AS (
            min(success_definition) AS success_definition,
            max(episode_length_cap) AS episode_cap,
            min(instruction_source) AS instruction_source
-    FROM scored
+    FROM pro
     GROUP BY base_suite, perturbation
 ),
 -- the base suite's episodes on the same tasks as each perturbed cell (a run may hold a subset)
@@ -42,8 +47,8 @@ base AS (
            t.perturbation,
            count(*) AS n_total,
            sum(CAST(b.scored_success AS BIGINT)) AS n_success
-    FROM (SELECT DISTINCT base_suite, perturbation, task_id FROM scored WHERE perturbation <> 'none') t
-    JOIN scored b ON b.base_suite = t.base_suite AND b.task_id = t.task_id AND b.perturbation = 'none'
+    FROM (SELECT DISTINCT base_suite, perturbation, task_id FROM pro WHERE perturbation <> 'none') t
+    JOIN pro b ON b.base_suite = t.base_suite AND b.task_id = t.task_id AND b.perturbation = 'none'
     GROUP BY t.base_suite, t.perturbation
     UNION ALL
     SELECT base_suite, perturbation, n_total, n_success FROM cells WHERE perturbation = 'none'
@@ -56,8 +61,8 @@ pairs AS (
            count(*) FILTER (WHERE b.scored_success AND NOT p.scored_success) AS n10,
            count(*) FILTER (WHERE NOT b.scored_success AND p.scored_success) AS n01,
            count(*) FILTER (WHERE NOT b.scored_success AND NOT p.scored_success) AS n00
-    FROM scored p
-    JOIN scored b
+    FROM pro p
+    JOIN pro b
       ON b.base_suite = p.base_suite AND b.perturbation = 'none'
      AND b.task_id = p.task_id AND b.init_state_id = p.init_state_id AND b.seed = p.seed
      AND b.start_sha256 = p.start_sha256
@@ -68,8 +73,8 @@ task_instructions AS (
     -- per (base suite, perturbation, task): did the policy get another text than on the base task?
     SELECT p.base_suite, p.perturbation,
            avg(CASE WHEN b.instruction <> p.instruction THEN 1.0 ELSE 0.0 END) AS instruction_changed
-    FROM (SELECT DISTINCT base_suite, perturbation, task_id, instruction FROM scored WHERE perturbation <> 'none') p
-    JOIN (SELECT DISTINCT base_suite, task_id, instruction FROM scored WHERE perturbation = 'none') b
+    FROM (SELECT DISTINCT base_suite, perturbation, task_id, instruction FROM pro WHERE perturbation <> 'none') p
+    JOIN (SELECT DISTINCT base_suite, task_id, instruction FROM pro WHERE perturbation = 'none') b
       ON b.base_suite = p.base_suite AND b.task_id = p.task_id
     GROUP BY p.base_suite, p.perturbation
 ),

@@ -297,4 +297,27 @@ fn the_expert_succeeds_on_layout_variants_and_random_does_not() {
     }
     assert!(rates[0] >= 2, "the expert succeeded on {} of {} layout variants", rates[0], 4 * TEST_PER_SUITE);
     assert_eq!(rates[1], 0, "the random baseline succeeded on a layout variant");
+    // LIBERO-Plus's table scores them (no twin: its own scene and init state, so never paired);
+    // LIBERO-PRO's does not take them for a PRO suite.
+    let run = d.join("expert");
+    let r = run.to_str().unwrap();
+    ok(pipeline(&["generalisation", "--run", r, "--out", d.join("out").to_str().unwrap()]));
+    let csv = std::fs::read_to_string(d.join("out/generalisation.csv")).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let at = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let layout: Vec<Vec<&str>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect::<Vec<_>>())
+        .filter(|r| r[at("category")] == "Layout")
+        .collect();
+    assert_eq!(layout.len(), 4 + 1, "a row per suite and the pooled one:\n{csv}");
+    for row in &layout {
+        assert_eq!(row[at("paired")], "false", "{row:?}");
+    }
+    let all = layout.iter().find(|r| r[at("base_suite")] == "all").unwrap();
+    assert_eq!(all[at("n_success")].parse::<usize>().unwrap(), rates[0]);
+    let robustness = pipeline(&["robustness", "--run", r, "--out", d.join("out").to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&robustness.stderr);
+    assert!(!robustness.status.success() && err.contains("no LIBERO-PRO suite"), "{err}");
 }

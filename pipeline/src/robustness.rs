@@ -31,9 +31,10 @@ pub async fn tables(ctx: &datafusion::prelude::SessionContext) -> Result<(Vec<Re
     Ok((cells, summary))
 }
 
-/// Does the session's run hold any perturbed suite?
+/// Does the session's run hold any LIBERO-PRO suite? (LIBERO-Plus's `plus_layout` suites are
+/// `generalisation`'s.)
 pub async fn has_perturbations(ctx: &datafusion::prelude::SessionContext) -> Result<bool> {
-    session::counts_any(ctx, "SELECT count(*) AS n FROM scored WHERE perturbation <> 'none'").await
+    session::counts_any(ctx, "SELECT count(*) AS n FROM scored WHERE perturbation NOT IN ('none', 'plus_layout')").await
 }
 
 pub fn run(args: Args) -> Result<()> {

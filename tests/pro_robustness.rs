@@ -299,3 +299,62 @@ fn robustness_specs_hold_five_cases_with_paired_base_rows() {
         assert!(!out.status.success() && err.contains(why), "{case}: {err}");
     }
 }
+
+/// A run of the cases end to end with the privileged expert: the visual cases leave its outcome
+/// exactly as the unperturbed twin's (it reads the state), the cases are scored per suite with
+/// paired drops by `pipeline generalisation`, and the report has their section. A blind policy
+/// on visual cases without --allow-unseen-perturbations is refused before any episode.
+#[test]
+fn the_expert_runs_the_cases_and_the_visual_ones_do_not_move_it() {
+    let d = test_dir("pro_robustness", "run");
+    let specs = d.join("specs.parquet");
+    let run = d.join("run");
+    let out = d.join("out");
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    ok(pipeline(&[
+        "specs",
+        "--benchmark",
+        "libero-pro-robustness",
+        "--suites",
+        "libero_spatial",
+        "--tasks",
+        "0,1",
+        "--trials",
+        "1",
+        "-o",
+        &s(&specs),
+    ]));
+    let refused = pipeline(&["run", &s(&specs), "--policy", "expert", "--out", &s(&run), "--stop-on-success"]);
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && err.contains("--allow-unseen-perturbations"), "{err}");
+    assert!(!run.join("episodes").exists(), "an episode ran before the refusal");
+    ok(pipeline(&[
+        "run",
+        &s(&specs),
+        "--policy",
+        "expert",
+        "--out",
+        &s(&run),
+        "--stop-on-success",
+        "--allow-unseen-perturbations",
+    ]));
+    ok(pipeline(&["generalisation", "--run", &s(&run), "--out", &s(&out)]));
+    let csv = std::fs::read_to_string(out.join("pro_robustness_cases.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let mut cases = std::collections::BTreeSet::new();
+    for line in lines {
+        let f: Vec<&str> = line.split(',').collect();
+        assert_eq!(f[col("n_total")], "2", "{line}");
+        assert_eq!(f[col("paired")], "true", "{line}");
+        if ["visual_noise_glare", "camera_view_angle", "object_texture"].contains(&f[col("robustness_case")]) {
+            assert_eq!(f[col("drop_from_base")].parse::<f64>().unwrap(), 0.0, "{line}");
+        }
+        cases.insert(f[col("robustness_case")].to_string());
+    }
+    assert_eq!(cases.len(), 5, "{csv}");
+    ok(pipeline(&["report", "--run", &s(&run), "--out", &s(&out)]));
+    let html = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(html.contains("id=pro-robustness-cases"));
+}

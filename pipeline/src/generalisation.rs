@@ -5,6 +5,10 @@
 //! them); then this run's categories beside the published leaderboard with
 //! its three totals, labelled (`queries/generalisation_summary.sql`). The run holds a LIBERO-Plus
 //! spec table's rows (`pipeline specs --benchmark libero-plus`): the variants and the base rows.
+//!
+//! A run of LIBERO-PRO's robustness cases (`pipeline specs --benchmark libero-pro-robustness`) is
+//! scored the same way, per suite × case with the drop paired to each row's unperturbed twin
+//! (`queries/pro_robustness_cases.sql`). A run may hold both.
 
 use crate::results::write_csv;
 use crate::session::{self, Scoring};
@@ -34,6 +38,20 @@ pub async fn has_plus_rows(ctx: &datafusion::prelude::SessionContext) -> Result<
     session::counts_any(ctx, "SELECT count(*) FROM episodes WHERE benchmark = 'libero_plus'").await
 }
 
+/// Does the session's run hold LIBERO-PRO robustness-case rows?
+pub async fn has_pro_robustness_rows(ctx: &datafusion::prelude::SessionContext) -> Result<bool> {
+    let schema = ctx.table("episodes").await?.schema().clone();
+    if !schema.has_column_with_unqualified_name("benchmark") || !schema.has_column_with_unqualified_name("category") {
+        return Ok(false);
+    }
+    session::counts_any(ctx, "SELECT count(*) FROM episodes WHERE benchmark = 'libero_pro_robustness'").await
+}
+
+/// LIBERO-PRO's robustness cases, per suite × case.
+pub async fn pro_robustness_cases(ctx: &datafusion::prelude::SessionContext) -> Result<Vec<RecordBatch>> {
+    session::queries::run(ctx, session::queries::PRO_ROBUSTNESS_CASES).await
+}
+
 /// The two tables of a run's session (the `generalisation` view stays defined on it).
 pub async fn tables(ctx: &datafusion::prelude::SessionContext) -> Result<(Vec<RecordBatch>, Vec<RecordBatch>)> {
     let cells = session::queries::run(ctx, session::queries::GENERALISATION).await?;
@@ -44,14 +62,44 @@ pub async fn tables(ctx: &datafusion::prelude::SessionContext) -> Result<(Vec<Re
 pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
         let (ctx, _) = session::open(&args.run, args.scoring.success, args.scoring.cap).await?;
-        if !has_plus_rows(&ctx).await? {
+        let (plus, pro) = (has_plus_rows(&ctx).await?, has_pro_robustness_rows(&ctx).await?);
+        if !plus && !pro {
             bail!(
-                "{} holds no LIBERO-Plus rows (benchmark = 'libero_plus'); make a spec table with `pipeline specs --benchmark libero-plus` and run it",
+                "{} holds neither LIBERO-Plus rows (benchmark = 'libero_plus') nor LIBERO-PRO robustness-case rows (benchmark = 'libero_pro_robustness'); make a spec table with `pipeline specs --benchmark libero-plus` or `--benchmark libero-pro-robustness` and run it",
                 args.run
             );
         }
-        let (cells, summary) = tables(&ctx).await?;
         std::fs::create_dir_all(&args.out)?;
+        if pro {
+            let cases = pro_robustness_cases(&ctx).await?;
+            write_csv(&args.out.join("pro_robustness_cases.csv"), &cases)?;
+            let all = arrow::compute::concat_batches(&cases[0].schema(), &cases)?;
+            let project: Vec<usize> = [
+                "base_suite",
+                "robustness_case",
+                "n_total",
+                "n_errors",
+                "success_rate",
+                "ci_lo",
+                "ci_hi",
+                "paired",
+                "base_rate",
+                "drop_from_base",
+                "drop_lo",
+                "drop_hi",
+                "mcnemar_p",
+            ]
+            .iter()
+            .map(|c| all.schema().index_of(c))
+            .collect::<Result<_, _>>()?;
+            println!("LIBERO-PRO robustness cases (success definition: {})", args.scoring.describe());
+            println!("{}", arrow::util::pretty::pretty_format_batches(&[all.project(&project)?])?);
+            println!("wrote {}/pro_robustness_cases.csv", args.out.display());
+            if !plus {
+                return Ok(());
+            }
+        }
+        let (cells, summary) = tables(&ctx).await?;
         write_csv(&args.out.join("generalisation.csv"), &cells)?;
         write_csv(&args.out.join("generalisation_summary.csv"), &summary)?;
         println!("success definition: {}", args.scoring.describe());

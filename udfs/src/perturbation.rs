@@ -16,6 +16,7 @@
 //! | `image_brightness`, `image_noise_std` | observation | LIBERO-PRO's `dark_noise` on every camera image the policy sees ([`libero_sim::dark_noise`]), one frozen noise field per episode and camera |
 //! | `initial_pose_object`, `initial_pose_delta_xy` (2), `initial_pose_yaw_rad`, `initial_pose_min_delta` | state edit after `set_init_state` | LIBERO-PRO's initial pose: the object yawed (absolute) and shifted by a safe delta |
 //! | `runtime_move_object`, `runtime_move_delta_xy` (2), `runtime_move_min_delta`, `runtime_move_trigger_m` (0.09), `runtime_move_fallback_step` (160) | state edit before a step | LIBERO-PRO's runtime move: the object shifted once, when the gripper nears it or at the fallback step |
+//! | `occluder_object`, `occlusion_reference`, `occlusion_offset_xy` (2), `occlusion_partner`, `occlusion_partner_threshold_m` (0.24), `occlusion_partner_delta_xy` (2), `occlusion_partner_clearance_m` (0.08) | state edit after `set_init_state`, and after every step | LIBERO-PRO's `view_occlusion`: the goal partner moved away when too close, the occluder (in the `<suite>_view_occlusion` scenes only) placed in front of the reference by a safe offset and pinned there ([`libero_sim::env::Occlusion`]) |
 //!
 //! The columns of a row, with its `variant` name if it has one, make the episode's *variant*: a
 //! hash that joins the episode key (`suite/task/init/seed/v<hash>`), so perturbed copies of one
@@ -26,7 +27,9 @@
 use arrow::array::{Array, AsArray, RecordBatch};
 use arrow::datatypes::{DataType, Float64Type};
 use libero_sim::dark_noise::DarkNoise;
-use libero_sim::env::{Appearance, EpisodeEdits, InitialPose, Lighting, ObjectShift, RuntimeMove};
+use libero_sim::env::{
+    Appearance, EpisodeEdits, InitialPose, Lighting, ObjectShift, Occlusion, OcclusionPartner, RuntimeMove,
+};
 use libero_sim::image_noise::{NoiseRevision, SensorNoise};
 use libero_sim::viewpoint::{self, CameraPose, ViewParams};
 use serde_json::json;
@@ -61,6 +64,18 @@ pub const RUNTIME_MOVE_FALLBACK: &str = "runtime_move_fallback_step";
 /// LIBERO-PRO's defaults for a runtime move (`PerturbationRuntimeOptions`, as shipped).
 pub const DEFAULT_TRIGGER_M: f64 = 0.09;
 pub const DEFAULT_FALLBACK_STEP: u32 = 160;
+pub const OCCLUDER_OBJECT: &str = "occluder_object";
+pub const OCCLUSION_REFERENCE: &str = "occlusion_reference";
+pub const OCCLUSION_OFFSET: &str = "occlusion_offset_xy";
+pub const OCCLUSION_PARTNER: &str = "occlusion_partner";
+pub const OCCLUSION_PARTNER_THRESHOLD: &str = "occlusion_partner_threshold_m";
+pub const OCCLUSION_PARTNER_DELTA: &str = "occlusion_partner_delta_xy";
+pub const OCCLUSION_PARTNER_CLEARANCE: &str = "occlusion_partner_clearance_m";
+/// LIBERO-PRO's shipped `object_placement` values for the goal partner (§C2): moved when closer
+/// than 0.24 m, by (0.16, 0), the occluder kept 0.08 m from it.
+pub const DEFAULT_PARTNER_THRESHOLD_M: f64 = 0.24;
+pub const DEFAULT_PARTNER_DELTA: [f64; 2] = [0.16, 0.0];
+pub const DEFAULT_PARTNER_CLEARANCE_M: f64 = 0.08;
 
 /// Every column this module reads; a spec column of another name is carried through untouched.
 pub fn reserved_columns() -> Vec<&'static str> {
@@ -79,6 +94,15 @@ pub fn reserved_columns() -> Vec<&'static str> {
         RUNTIME_MOVE_TRIGGER,
         RUNTIME_MOVE_FALLBACK,
     ]);
+    out.extend([
+        OCCLUDER_OBJECT,
+        OCCLUSION_REFERENCE,
+        OCCLUSION_OFFSET,
+        OCCLUSION_PARTNER,
+        OCCLUSION_PARTNER_THRESHOLD,
+        OCCLUSION_PARTNER_DELTA,
+        OCCLUSION_PARTNER_CLEARANCE,
+    ]);
     out
 }
 
@@ -96,6 +120,7 @@ pub struct EpisodePerturbation {
     pub dark_noise: Option<DarkNoise>,
     pub initial_pose: Option<InitialPose>,
     pub runtime_move: Option<RuntimeMove>,
+    pub occlusion: Option<Occlusion>,
     /// The row's `variant` name, when it has one.
     pub variant_name: Option<String>,
 }
@@ -225,6 +250,7 @@ impl EpisodePerturbation {
                 "runtime_move_trigger_m / runtime_move_fallback_step are set but runtime_move_object is not".into()
             );
         }
+        self.occlusion = occlusion(extras, row)?;
         Ok(())
     }
 
@@ -241,6 +267,7 @@ impl EpisodePerturbation {
             || self.dark_noise.is_some()
             || self.initial_pose.is_some()
             || self.runtime_move.is_some()
+            || self.occlusion.is_some()
     }
 
     /// Whether the policy must see the agentview camera for this perturbation to mean anything.
@@ -316,6 +343,17 @@ impl EpisodePerturbation {
             v["trigger_m"] = json!(r.trigger_distance + 0.0);
             v["fallback_step"] = json!(r.fallback_step);
             m.insert("runtime_move".into(), v);
+        }
+        if let Some(o) = &self.occlusion {
+            let partner = o.partner.as_ref().map(|p| {
+                json!({"object": p.object, "threshold_m": p.threshold + 0.0, "delta_xy": p.delta_xy.map(|x| x + 0.0),
+                       "clearance_m": p.clearance + 0.0})
+            });
+            m.insert(
+                "occlusion".into(),
+                json!({"occluder": o.occluder, "reference": o.reference, "offset_xy": o.offset_xy.map(|x| x + 0.0),
+                       "partner": partner}),
+            );
         }
         if let Some(v) = &self.variant_name {
             m.insert(VARIANT_NAME.into(), json!(v));
@@ -409,6 +447,24 @@ impl EpisodePerturbation {
                 fallback_step: from(de(&r, "fallback_step")?, "fallback_step")?,
             });
         }
+        if let Some(o) = field("occlusion")? {
+            let o = parse(o, "occlusion")?;
+            let partner = match o.get("partner").filter(|x| !x.is_null()) {
+                None => None,
+                Some(x) => Some(OcclusionPartner {
+                    object: from(de(x, "object")?, "partner.object")?,
+                    threshold: from(de(x, "threshold_m")?, "partner.threshold_m")?,
+                    delta_xy: from(de(x, "delta_xy")?, "partner.delta_xy")?,
+                    clearance: from(de(x, "clearance_m")?, "partner.clearance_m")?,
+                }),
+            };
+            p.occlusion = Some(Occlusion {
+                occluder: from(de(&o, "occluder")?, "occluder")?,
+                reference: from(de(&o, "reference")?, "reference")?,
+                offset_xy: from(de(&o, "offset_xy")?, "offset_xy")?,
+                partner,
+            });
+        }
         Ok(p)
     }
 
@@ -432,6 +488,7 @@ impl EpisodePerturbation {
             appearance: self.appearance.clone(),
             initial_pose: self.initial_pose.clone(),
             runtime_move: self.runtime_move.clone(),
+            occlusion: self.occlusion.clone(),
         })
     }
 }
@@ -502,6 +559,68 @@ fn shift(batch: &RecordBatch, prefix: &str, row: usize) -> Result<Option<ObjectS
         return Err(format!("{delta} = {delta_xy:?} / {min} = {min_delta_norm}: shifts are at most 1 m"));
     }
     Ok(Some(ObjectShift { object: name.trim().to_string(), delta_xy, min_delta_norm }))
+}
+
+/// The `occluder_object` / `occlusion_*` columns (LIBERO-PRO's `view_occlusion`). The partner's
+/// threshold, move and clearance default to the shipped values when `occlusion_partner` is set.
+fn occlusion(batch: &RecordBatch, row: usize) -> Result<Option<Occlusion>, String> {
+    let occluder = text(batch, OCCLUDER_OBJECT, row)?;
+    let reference = text(batch, OCCLUSION_REFERENCE, row)?;
+    let offset = floats::<2>(batch, OCCLUSION_OFFSET, row)?;
+    let partner = text(batch, OCCLUSION_PARTNER, row)?;
+    let threshold = number(batch, OCCLUSION_PARTNER_THRESHOLD, row)?;
+    let delta = floats::<2>(batch, OCCLUSION_PARTNER_DELTA, row)?;
+    let clearance = number(batch, OCCLUSION_PARTNER_CLEARANCE, row)?;
+    let Some(occluder) = occluder else {
+        if reference.is_some()
+            || offset.is_some()
+            || partner.is_some()
+            || threshold.is_some()
+            || delta.is_some()
+            || clearance.is_some()
+        {
+            return Err(format!(
+                "occlusion_* columns are set but {OCCLUDER_OBJECT} is not: name the occluder (black_book_occluder_1 in the <suite>_view_occlusion scenes)"
+            ));
+        }
+        return Ok(None);
+    };
+    let occluder = occluder.trim().to_string();
+    let reference = reference.map(|r| r.trim().to_string()).filter(|r| !r.is_empty()).ok_or_else(|| {
+        format!("{OCCLUDER_OBJECT} is set but {OCCLUSION_REFERENCE} is not: name the object it stands in front of")
+    })?;
+    let offset_xy = offset
+        .ok_or_else(|| format!("{OCCLUDER_OBJECT} is set but {OCCLUSION_OFFSET} is not (LIBERO-PRO: [0.08, 0])"))?;
+    if occluder.is_empty() {
+        return Err(format!("{OCCLUDER_OBJECT} is empty"));
+    }
+    if offset_xy.iter().any(|d| d.abs() > 1.0) {
+        return Err(format!("{OCCLUSION_OFFSET} = {offset_xy:?}: offsets are at most 1 m"));
+    }
+    let partner = match partner.map(|p| p.trim().to_string()).filter(|p| !p.is_empty()) {
+        None => {
+            if threshold.is_some() || delta.is_some() || clearance.is_some() {
+                return Err(format!("{OCCLUSION_PARTNER}_* columns are set but {OCCLUSION_PARTNER} is not"));
+            }
+            None
+        }
+        Some(object) => {
+            let threshold = threshold.unwrap_or(DEFAULT_PARTNER_THRESHOLD_M);
+            let clearance = clearance.unwrap_or(DEFAULT_PARTNER_CLEARANCE_M);
+            let delta_xy = delta.unwrap_or(DEFAULT_PARTNER_DELTA);
+            if !(0.0..=2.0).contains(&threshold) {
+                return Err(format!("{OCCLUSION_PARTNER_THRESHOLD} = {threshold} is out of range [0, 2] m"));
+            }
+            if !(0.0..=1.0).contains(&clearance) {
+                return Err(format!("{OCCLUSION_PARTNER_CLEARANCE} = {clearance} is out of range [0, 1] m"));
+            }
+            if delta_xy.iter().any(|d| d.abs() > 1.0) {
+                return Err(format!("{OCCLUSION_PARTNER_DELTA} = {delta_xy:?}: moves are at most 1 m"));
+            }
+            Some(OcclusionPartner { object, threshold, delta_xy, clearance })
+        }
+    };
+    Ok(Some(Occlusion { occluder, reference, offset_xy, partner }))
 }
 
 /// `robot_init_qpos`: a list (or fixed-size list) of 7 finite numbers.

@@ -1,7 +1,7 @@
 //! What an episode changes in the env besides its init state: the perturbations of the model at
 //! load time (the `agentview` camera pose, the lights, objects' colours), of the controller (the
 //! arm's reset configuration) and of the objects' placement (LIBERO-PRO's initial pose and runtime
-//! move, in [`super::object_moves`]).
+//! move, in [`super::object_moves`]; its occluder, in [`super::occlusion`]).
 //!
 //! The reference applies these when it builds the model (LIBERO-Plus compiles the camera pose into
 //! the scene XML and picks a robot class whose `init_qpos` differs), so a hard reset rebuilds them
@@ -43,6 +43,9 @@ pub struct EpisodeEdits {
     pub initial_pose: Option<super::object_moves::InitialPose>,
     /// LIBERO-PRO's `runtime_move` block: an object shifted once, mid-episode.
     pub runtime_move: Option<super::object_moves::RuntimeMove>,
+    /// LIBERO-PRO's `object_placement` block (`view_occlusion`): the occluder placed in front of
+    /// the target and pinned after every step ([`super::occlusion`]).
+    pub occlusion: Option<super::occlusion::Occlusion>,
     /// The arm's 7 joint positions at `reset()` (robosuite `init_qpos`). `set_init_state` then
     /// overwrites the arm with the init state's, so this survives only in the controller: its
     /// null-space target for the whole episode and its stale reset-time cache, which sets the first
@@ -143,6 +146,9 @@ impl LiberoEnv {
             .flatten()
         {
             self.check_shift(shift)?;
+        }
+        if let Some(o) = &edits.occlusion {
+            self.check_occlusion(o)?;
         }
         self.edits = edits;
         Ok(())

@@ -14,10 +14,12 @@
 
 mod episode_edits;
 mod object_moves;
+mod occlusion;
 mod probe;
 
 pub use episode_edits::{Appearance, EpisodeEdits, Lighting};
 pub use object_moves::{AppliedMove, InitialPose, ObjectShift, RuntimeMove, candidate_deltas};
+pub use occlusion::{AppliedOcclusion, Occlusion, OcclusionPartner, candidate_reference_offsets};
 pub use probe::{Box3, JointFrame, ObjectGeometry, SceneProbe, SiteFrame};
 
 use crate::SimError;
@@ -101,6 +103,9 @@ pub struct LiberoEnv {
     nominal: episode_edits::Nominal,
     /// What the episode's placement perturbations did so far.
     moves: object_moves::MovesDone,
+    /// The occluder's free-joint qpos address and the pose it is pinned at after every step
+    /// (LIBERO-PRO's `view_occlusion`), for the current episode.
+    pinned: Option<(usize, [f64; 7])>,
     /// `Some` between reset and the first substep: robosuite's stale controller cache.
     stale: Option<ArmState>,
     eef_site: usize,
@@ -215,6 +220,7 @@ impl LiberoEnv {
             edits: EpisodeEdits::default(),
             nominal,
             moves: Default::default(),
+            pinned: None,
             stale: None,
             eef_site,
             hand_body,
@@ -318,7 +324,9 @@ impl LiberoEnv {
         self.data.qvel_mut().copy_from_slice(&state[1 + nq..]);
         self.data.forward();
         // LIBERO-PRO's order after `set_init_state`: object edits, then lighting (the camera is set).
+        self.pinned = None;
         self.apply_initial_pose()?;
+        self.apply_occlusion()?;
         self.apply_look_edits()?;
         // LIBERO's `set_init_state` runs `_post_process()` once (env_wrapper.py:139-145).
         self.update_indicators();
@@ -386,7 +394,10 @@ impl LiberoEnv {
         self.steps += 1;
         self.check_stable()?;
         self.update_indicators();
-        Ok(StepOutcome { step: self.steps, goal: self.goal.evaluate(&self.data) })
+        // The reference's `done` is computed inside `env.step`, before its harness pins the occluder.
+        let goal = self.goal.evaluate(&self.data);
+        self.pin_occluder();
+        Ok(StepOutcome { step: self.steps, goal })
     }
 
     /// [`step`](Self::step) for an action of runtime length (e.g. from a policy): anything but

@@ -103,7 +103,7 @@ fn yaw_quat(yaw: f64) -> [f64; 4] {
 
 /// Where an object's pose lives: a free joint's qpos, or (a fixture) its body's model pose.
 #[derive(Debug, Clone, Copy)]
-enum Placement {
+pub(super) enum Placement {
     FreeJoint { qpos: usize },
     Fixture { body: usize },
 }
@@ -125,7 +125,7 @@ impl LiberoEnv {
         Ok(())
     }
 
-    fn placement(&self, object: &str) -> Result<Placement, SimError> {
+    pub(super) fn placement(&self, object: &str) -> Result<Placement, SimError> {
         let body = self.object_root_body(object)?;
         let m = &self.model;
         let jnt = m.body_jntadr()[body];
@@ -182,7 +182,11 @@ impl LiberoEnv {
     }
 
     /// Move the object by the first safe candidate; the data is forwarded at the pose it is left at.
-    fn shift_safely(&mut self, shift: &ObjectShift, placement: Placement) -> Result<Option<[f64; 2]>, SimError> {
+    pub(super) fn shift_safely(
+        &mut self,
+        shift: &ObjectShift,
+        placement: Placement,
+    ) -> Result<Option<[f64; 2]>, SimError> {
         let body = self.object_root_body(&shift.object)?;
         for c in candidate_deltas(shift.delta_xy, shift.min_delta_norm) {
             self.displace(placement, c);
@@ -214,7 +218,7 @@ impl LiberoEnv {
     /// The checks of a candidate, on the forwarded data: inside the work area, no footprint overlap
     /// with an object on the same support layer, no interpenetration of the moved object with
     /// anything but the table or floor.
-    fn placement_is_safe(&self, object: &str, body: usize) -> bool {
+    pub(super) fn placement_is_safe(&self, object: &str, body: usize) -> bool {
         let xpos = self.data.xpos();
         let p = xpos[body];
         if p[0].abs() > WORK_AREA || p[1].abs() > WORK_AREA {
@@ -263,6 +267,7 @@ impl LiberoEnv {
 pub(super) struct MovesDone {
     pub initial: Option<AppliedMove>,
     pub runtime: Option<AppliedMove>,
+    pub occlusion: Option<super::occlusion::AppliedOcclusion>,
 }
 
 #[cfg(test)]

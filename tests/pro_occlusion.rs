@@ -244,3 +244,61 @@ fn an_occlusion_on_a_clean_scene_or_of_an_unknown_object_is_refused() {
         .to_string();
     assert!(err.contains("free joint"), "{err}");
 }
+
+/// `specs --cases view_occlusion`: rows on the occluder scenes with our rules' objects; an unbuilt
+/// scene named with the set-up step.
+#[test]
+fn view_occlusion_specs_run_the_occluder_scenes() {
+    use arrow::array::{Array, AsArray};
+    let d = test_dir("pro_occlusion", "specs");
+    let path = d.join("specs.parquet");
+    let p = path.to_str().unwrap();
+    let args = ["specs", "--benchmark", "libero-pro-robustness", "--cases", "view_occlusion", "--trials", "2", "-o", p];
+    ok(pipeline(&[&args[..], &["--suites", "libero_goal", "--tasks", "8"]].concat()));
+    let file = std::fs::File::open(&path).unwrap();
+    let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file).unwrap().build().unwrap();
+    let (mut base, mut occ) = (0, 0);
+    for batch in reader {
+        let b = batch.unwrap();
+        let s = |n: &str| b.column_by_name(n).unwrap().as_string::<i32>().clone();
+        let (suite, category, occluder, reference, partner) =
+            (s("suite"), s("category"), s("occluder_object"), s("occlusion_reference"), s("occlusion_partner"));
+        let offset = b.column_by_name("occlusion_offset_xy").unwrap().as_list::<i32>().clone();
+        let threshold = b
+            .column_by_name("occlusion_partner_threshold_m")
+            .unwrap()
+            .as_primitive::<arrow::datatypes::Float64Type>()
+            .clone();
+        for i in 0..b.num_rows() {
+            if category.is_null(i) {
+                base += 1;
+                assert_eq!(suite.value(i), "libero_goal");
+                assert!(occluder.is_null(i));
+                continue;
+            }
+            occ += 1;
+            assert_eq!(suite.value(i), "libero_goal_view_occlusion");
+            assert_eq!(occluder.value(i), "black_book_occluder_1");
+            assert_eq!((reference.value(i), partner.value(i)), ("akita_black_bowl_1", "plate_1"));
+            let o = offset.value(i);
+            let o = o.as_primitive::<arrow::datatypes::Float64Type>();
+            assert_eq!((o.value(0), o.value(1)), (0.08, 0.0), "bowl on plate: not one of the lateral-offset tasks");
+            assert_eq!(threshold.value(i), 0.24);
+        }
+    }
+    assert_eq!((base, occ), (2, 2));
+    // the rows run through the pipeline (occluder scene, its columns validated and applied)
+    let run = d.join("run");
+    ok(pipeline(&["run", p, "--out", run.to_str().unwrap(), "--policy", "lift", "--max-steps", "5"]));
+    let rows =
+        sql_rows(&run, "SELECT suite, count(*) FROM episodes WHERE error IS NULL GROUP BY suite ORDER BY suite", &[]);
+    assert_eq!(rows, [["libero_goal", "2"], ["libero_goal_view_occlusion", "2"]].map(|r| r.map(String::from).to_vec()));
+    // a task whose occluder scene is not built: the error names the set-up step
+    let built: Vec<u32> =
+        bundles().tasks().iter().filter(|t| t.suite == "libero_spatial_view_occlusion").map(|t| t.task_id).collect();
+    if let Some(missing) = (0..10).find(|t| !built.contains(t)) {
+        let out = pipeline(&[&args[..], &["--suites", "libero_spatial", "--tasks", &missing.to_string()]].concat());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("./setup.sh --suites libero_pro_occlusion"), "{err}");
+    }
+}

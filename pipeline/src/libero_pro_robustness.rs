@@ -14,11 +14,22 @@
 //!   (`basket_1_contain_region` → `basket_1`); a region of the table itself, or a goal with no
 //!   `on`/`in`, falls back to the target.
 //!
+//! - **view_occlusion**: the occluder stands in front of the target; the goal partner is the
+//!   destination (none when it is the target). The spec gives the lateral offset (0.08, 0.09) to 5
+//!   libero_goal tasks without naming them: ours are the libero_goal tasks whose target is a
+//!   movable object and whose destination a fixture (1, 2, 3, 4, 9: an object put on or in
+//!   furniture); its "2 wine tasks" (partner threshold 0.18 m, move (-0.18, 0.10)) are those whose
+//!   target is the wine bottle (2, 9). The occluder's name is the object the task's
+//!   `<suite>_view_occlusion` bundle has and its clean bundle has not.
+//!
 //! Every row runs the task's own bundle from init state `i` (the clean suite's init states, as the
-//! reference shares them), with the case's columns; the base rows (category null) run the same
-//! (task, init state, seed) unperturbed, so each case's drop is paired. Two cases are not rows:
-//! `object_shape` is a no-op in the reference, `view_occlusion` needs bundles not built yet; asking
-//! for them is an error that says why.
+//! reference shares them), with the case's columns; `view_occlusion` rows run the task's occluder
+//! scene (`<suite>_view_occlusion`, the same task id, the clean init states mapped onto it), built
+//! on demand (`./setup.sh --suites libero_pro_occlusion`): the default set includes the tasks whose
+//! occluder scene is built and says how many are left out; `--cases view_occlusion` refuses unbuilt
+//! ones. The base rows (category null) run the same (task, init state, seed) unperturbed, so each
+//! case's drop is paired. `object_shape` is no rows: a no-op in the reference; asking for it is an
+//! error that says why.
 
 use anyhow::{Context, Result, bail};
 use arrow::array::{
@@ -34,9 +45,19 @@ use std::sync::Arc;
 /// The parameter table, compiled in (it is the benchmark's definition, not a set-up product).
 const TABLE: &str = include_str!("../../data/libero_pro_robustness.json");
 
-/// The five cases that run, in the order LIBERO-PRO numbers them.
-pub const CASES: [&str; 5] =
-    ["visual_noise_glare", "camera_view_angle", "runtime_object_move", "object_texture", "initial_pose_position_angle"];
+/// The cases that run, in the order LIBERO-PRO numbers them.
+pub const CASES: [&str; 6] = [
+    "visual_noise_glare",
+    "camera_view_angle",
+    "runtime_object_move",
+    "object_texture",
+    "view_occlusion",
+    "initial_pose_position_angle",
+];
+/// The case whose rows run bundles of their own (`<suite>_view_occlusion`).
+pub const OCCLUSION: &str = "view_occlusion";
+/// The set-up command that builds every occluder scene.
+const OCCLUSION_SETUP: &str = "./setup.sh --suites libero_pro_occlusion";
 
 #[derive(Debug, Deserialize)]
 struct Table {
@@ -103,7 +124,7 @@ struct Rows {
     texts: BTreeMap<&'static str, Vec<Option<String>>>,
 }
 
-const FLOAT_COLUMNS: [&str; 10] = [
+const FLOAT_COLUMNS: [&str; 12] = [
     "light_ambient",
     "light_diffuse",
     "light_specular",
@@ -114,10 +135,26 @@ const FLOAT_COLUMNS: [&str; 10] = [
     "runtime_move_min_delta",
     "runtime_move_trigger_m",
     "runtime_move_fallback_step",
+    "occlusion_partner_threshold_m",
+    "occlusion_partner_clearance_m",
 ];
-const LIST_COLUMNS: [&str; 5] =
-    ["camera_pos", "camera_quat_wxyz", "appearance_rgba", "initial_pose_delta_xy", "runtime_move_delta_xy"];
-const TEXT_COLUMNS: [&str; 3] = ["appearance_objects", "initial_pose_object", "runtime_move_object"];
+const LIST_COLUMNS: [&str; 7] = [
+    "camera_pos",
+    "camera_quat_wxyz",
+    "appearance_rgba",
+    "initial_pose_delta_xy",
+    "runtime_move_delta_xy",
+    "occlusion_offset_xy",
+    "occlusion_partner_delta_xy",
+];
+const TEXT_COLUMNS: [&str; 6] = [
+    "appearance_objects",
+    "initial_pose_object",
+    "runtime_move_object",
+    "occluder_object",
+    "occlusion_reference",
+    "occlusion_partner",
+];
 
 impl Rows {
     fn push(&mut self, suite: Suite, task: u32, init: u32, seed: u64, case: Option<(&str, String)>) {
@@ -150,8 +187,15 @@ impl Rows {
         *self.texts.get_mut(c).and_then(|col| col.last_mut()).expect("a row was pushed") = Some(v);
     }
 
-    /// The case's columns on the last row.
-    fn set_case(&mut self, case: &str, p: &serde_json::Value, task: &TaskInfo, objects: &TaskObjects) -> Result<()> {
+    /// The case's columns on the last row (`occluder`: the task's occluder, for view_occlusion).
+    fn set_case(
+        &mut self,
+        case: &str,
+        p: &serde_json::Value,
+        task: &TaskInfo,
+        objects: &TaskObjects,
+        occluder: Option<&str>,
+    ) -> Result<()> {
         let num = |k: &str| p[k].as_f64().with_context(|| format!("{case}.{k} is not a number"));
         let list = |k: &str| -> Result<Vec<f64>> {
             serde_json::from_value(p[k].clone()).with_context(|| format!("{case}.{k} is not a list of numbers"))
@@ -185,6 +229,28 @@ impl Rows {
                 self.set_list("initial_pose_delta_xy", list("delta_xy")?);
                 self.set_float("initial_pose_min_delta", num("min_delta")?);
                 self.set_float("initial_pose_yaw_rad", num("yaw_rad")?);
+            }
+            OCCLUSION => {
+                let occluder = occluder.context("view_occlusion needs the task's occluder scene")?;
+                let goal = task.suite == libero_schema::protocol::BaseSuite::LiberoGoal.name();
+                let to_fixture = task.objects.get(&objects.destination).is_some_and(|o| o.fixture)
+                    && task.objects.get(&objects.target).is_some_and(|o| !o.fixture);
+                let offset = if goal && to_fixture { "lateral_offset_xy" } else { "offset_xy" };
+                self.set_text("occluder_object", occluder.to_string());
+                self.set_text("occlusion_reference", objects.target.clone());
+                self.set_list("occlusion_offset_xy", list(offset)?);
+                if objects.destination != objects.target {
+                    let wine = goal && p["wine_target"].as_str() == Some(objects.target.as_str());
+                    let (threshold, delta) = if wine {
+                        ("wine_partner_threshold_m", "wine_partner_delta_xy")
+                    } else {
+                        ("partner_threshold_m", "partner_delta_xy")
+                    };
+                    self.set_text("occlusion_partner", objects.destination.clone());
+                    self.set_float("occlusion_partner_threshold_m", num(threshold)?);
+                    self.set_list("occlusion_partner_delta_xy", list(delta)?);
+                    self.set_float("occlusion_partner_clearance_m", num("partner_clearance_m")?);
+                }
             }
             other => bail!("no rule for case {other}"),
         }
@@ -230,6 +296,7 @@ impl Rows {
 pub fn spec_batch(bundles: &Path, opts: &RobustnessOptions) -> Result<RecordBatch> {
     let set = BundleSet::open(bundles)?;
     let table = table()?;
+    let asked_for_occlusion = opts.cases.as_ref().is_some_and(|c| c.iter().any(|c| c == OCCLUSION));
     let cases: Vec<String> = match &opts.cases {
         None => CASES.iter().map(|c| c.to_string()).collect(),
         Some(asked) => {
@@ -249,6 +316,7 @@ pub fn spec_batch(bundles: &Path, opts: &RobustnessOptions) -> Result<RecordBatc
         }
     };
     let mut rows = Rows::default();
+    let mut unbuilt: Vec<String> = Vec::new();
     for &suite in opts.suites {
         if suite.perturbation.is_some() || suite.base == libero_schema::protocol::BaseSuite::Libero90 {
             bail!(
@@ -269,18 +337,59 @@ pub fn spec_batch(bundles: &Path, opts: &RobustnessOptions) -> Result<RecordBatc
             }
             let bundle = set.load(suite, t.task_id)?;
             let objects = task_objects(&bundle.task)?;
+            let occlusion_suite = Suite::view_occlusion(suite.base);
+            let occluder = if cases.iter().any(|c| c == OCCLUSION) {
+                match set.entry(occlusion_suite, t.task_id) {
+                    Ok(_) => Some(occluder_of(&set, &bundle.task, occlusion_suite, t.task_id)?),
+                    Err(_) if !asked_for_occlusion => {
+                        unbuilt.push(format!("{occlusion_suite}/{}", t.task_id));
+                        None
+                    }
+                    Err(_) => bail!(
+                        "view_occlusion runs the occluder scene of {suite} task {}, {occlusion_suite}/{:02}, which is not built: run {OCCLUSION_SETUP} (all 40, ~15 min on 2 cores) or ./setup.sh --suites {occlusion_suite}",
+                        t.task_id,
+                        t.task_id
+                    ),
+                }
+            } else {
+                None
+            };
             for &seed in opts.seeds {
                 for init in 0..opts.trials {
                     rows.push(suite, t.task_id, init, seed, None);
                     for case in &cases {
-                        rows.push(suite, t.task_id, init, seed, Some((case, format!("{}__{case}", t.name))));
-                        rows.set_case(case, &table.cases[case], &bundle.task, &objects)?;
+                        if case == OCCLUSION && occluder.is_none() {
+                            continue;
+                        }
+                        let row_suite = if case == OCCLUSION { occlusion_suite } else { suite };
+                        rows.push(row_suite, t.task_id, init, seed, Some((case, format!("{}__{case}", t.name))));
+                        rows.set_case(case, &table.cases[case], &bundle.task, &objects, occluder.as_deref())?;
                     }
                 }
             }
         }
     }
+    if !unbuilt.is_empty() {
+        eprintln!(
+            "note: view_occlusion left out for {} task(s) whose occluder scene is not built ({}): run {OCCLUSION_SETUP} to build all 40",
+            unbuilt.len(),
+            unbuilt.join(", ")
+        );
+    }
     rows.finish()
+}
+
+/// The task's occluder: the object its `<suite>_view_occlusion` scene has and the clean one has not.
+fn occluder_of(set: &BundleSet, clean: &TaskInfo, suite: Suite, task_id: u32) -> Result<String> {
+    let scene = set.load(suite, task_id)?;
+    let added: Vec<&String> = scene.task.objects.keys().filter(|o| !clean.objects.contains_key(*o)).collect();
+    match added.as_slice() {
+        [one] => Ok((*one).clone()),
+        _ => bail!(
+            "{suite}/{task_id:02} should add exactly one object (the occluder) to {}, it adds {added:?}: rebuild it with {OCCLUSION_SETUP}",
+            clean.name
+        ),
+    }
 }
 
 #[cfg(test)]
@@ -288,13 +397,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_table_holds_the_five_cases_and_says_why_two_are_not_run() {
+    fn the_table_holds_the_cases_and_says_why_object_shape_is_not_run() {
         let t = table().unwrap();
         assert_eq!(t.cases.keys().cloned().collect::<Vec<_>>().len(), CASES.len());
         for c in CASES {
             assert!(t.cases.contains_key(c), "{c}");
         }
         assert!(t.not_run["object_shape"].contains("no-op"));
-        assert!(t.not_run.contains_key("view_occlusion"));
+        assert_eq!(t.cases[OCCLUSION]["offset_xy"], serde_json::json!([0.08, 0.0]));
     }
 }

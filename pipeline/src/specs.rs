@@ -77,9 +77,10 @@ pub struct Args {
     #[arg(long, default_value_t = TRIALS_PER_TASK)]
     base_trials: u32,
     /// libero_pro_robustness: cases to include (visual_noise_glare, camera_view_angle,
-    /// runtime_object_move, object_texture, initial_pose_position_angle; default: all five).
-    /// object_shape is a no-op in the reference and view_occlusion needs bundles not built yet:
-    /// asking for them is an error that says so.
+    /// runtime_object_move, object_texture, view_occlusion, initial_pose_position_angle; default:
+    /// all, view_occlusion for the tasks whose occluder scene is built, with a note naming the
+    /// set-up step for the rest). object_shape is a no-op in the reference: asking for it is an
+    /// error that says so.
     #[arg(long, value_delimiter = ',')]
     cases: Vec<String>,
 }

@@ -772,6 +772,39 @@ mod tests {
     }
 
     #[test]
+    fn occlusion_columns_read_back_and_take_the_shipped_partner_defaults() {
+        let text = |v: &str| Arc::new(StringArray::from(vec![v])) as ArrayRef;
+        let b = batch(vec![
+            ("occluder_object", text("black_book_occluder_1")),
+            ("occlusion_reference", text("akita_black_bowl_1")),
+            ("occlusion_offset_xy", list(vec![0.08, 0.0])),
+            ("occlusion_partner", text("plate_1")),
+        ]);
+        let p = EpisodePerturbation::from_row(&b, 0).unwrap();
+        let o = p.occlusion.as_ref().unwrap();
+        let partner = o.partner.as_ref().unwrap();
+        assert_eq!((partner.threshold, partner.delta_xy, partner.clearance), (0.24, [0.16, 0.0], 0.08));
+        assert_eq!(p.needs_camera(), None, "an obstacle in the way: blind policies meet it too");
+        assert_eq!(EpisodePerturbation::from_canonical(&p.canonical().unwrap()).unwrap(), p);
+        assert_eq!(p.env_edits("libero_tabletop_manipulation").unwrap().occlusion.as_ref(), Some(o));
+        let err = |cols: Vec<(&str, ArrayRef)>| EpisodePerturbation::from_row(&batch(cols), 0).unwrap_err();
+        assert!(err(vec![("occlusion_offset_xy", list(vec![0.08, 0.0]))]).contains("occluder_object"));
+        assert!(
+            err(vec![("occluder_object", text("b")), ("occlusion_offset_xy", list(vec![0.08, 0.0]))])
+                .contains("occlusion_reference")
+        );
+        assert!(
+            err(vec![
+                ("occluder_object", text("b")),
+                ("occlusion_reference", text("r")),
+                ("occlusion_offset_xy", list(vec![0.08, 0.0])),
+                ("occlusion_partner_threshold_m", Arc::new(Float64Array::from(vec![0.2])) as ArrayRef),
+            ])
+            .contains("occlusion_partner is not")
+        );
+    }
+
+    #[test]
     fn libero_pro_columns_that_do_not_go_together_are_refused() {
         let err = |cols: Vec<(&str, ArrayRef)>| EpisodePerturbation::from_row(&batch(cols), 0).unwrap_err();
         assert!(err(vec![("camera_pos", list(vec![0.0, 0.0, 1.0]))]).contains("go together"));

@@ -7,7 +7,8 @@
 -- camera_view_angle, runtime_object_move, object_texture, initial_pose_position_angle), and the
 -- base rows (category null): the same task, init state and seed, unperturbed.
 --
--- Pairing. Each case row's twin is the base row of the same (suite, task, init state, seed). When
+-- Pairing. Each case row's twin is the base row of the same (base suite, task, init state, seed)
+-- (view_occlusion rows run the task's occluder scene, suite <suite>_view_occlusion: the base suite joins them). When
 -- every row of a cell has its twin (`paired`), the base rate is the twins' and the interval for the
 -- drop is Newcombe's paired method 10, with McNemar's exact p; otherwise the base rate is all of
 -- the suite's base rows and the interval Newcombe's hybrid score interval for independent
@@ -22,7 +23,7 @@ cases AS (
     SELECT p.base_suite, p.category, p.scored_success AS s, b.scored_success AS t, p.errored AS e, b.errored AS te
     FROM (SELECT * FROM pro WHERE category IS NOT NULL) p
     LEFT JOIN (SELECT * FROM pro WHERE category IS NULL) b
-      ON b.suite = p.suite AND b.task_id = p.task_id AND b.init_state_id = p.init_state_id AND b.seed = p.seed
+      ON b.base_suite = p.base_suite AND b.task_id = p.task_id AND b.init_state_id = p.init_state_id AND b.seed = p.seed
 ),
 suite_base AS (
     SELECT base_suite, count(*) AS n_total, sum(CAST(scored_success AS BIGINT)) AS n_success,

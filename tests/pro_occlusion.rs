@@ -293,6 +293,16 @@ fn view_occlusion_specs_run_the_occluder_scenes() {
     let rows =
         sql_rows(&run, "SELECT suite, count(*) FROM episodes WHERE error IS NULL GROUP BY suite ORDER BY suite", &[]);
     assert_eq!(rows, [["libero_goal", "2"], ["libero_goal_view_occlusion", "2"]].map(|r| r.map(String::from).to_vec()));
+    // scored beside their base rows: each occluder-scene episode pairs with the clean scene's twin
+    let out = d.join("scored");
+    ok(pipeline(&["generalisation", "--run", run.to_str().unwrap(), "--out", out.to_str().unwrap()]));
+    let csv = std::fs::read_to_string(out.join("pro_robustness_cases.csv")).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let col = |row: &str, name: &str| {
+        row.split(',').nth(header.iter().position(|h| *h == name).unwrap()).unwrap().to_string()
+    };
+    let cell = csv.lines().find(|l| l.starts_with("libero_goal,view_occlusion,")).expect("a view_occlusion cell");
+    assert_eq!((col(cell, "n_total"), col(cell, "paired")), ("2".into(), "true".into()), "{csv}");
     // a task whose occluder scene is not built: the error names the set-up step
     let built: Vec<u32> =
         bundles().tasks().iter().filter(|t| t.suite == "libero_spatial_view_occlusion").map(|t| t.task_id).collect();

@@ -249,6 +249,10 @@ fn layout_specs_point_at_their_own_bundles_or_name_the_set_up_step() {
             }
         }
     }
+    // the layout suites are not LIBERO-Plus's --suites: the error says how to ask for them
+    let wrong = pipeline(&["specs", "--benchmark", "libero-plus", "--suites", "libero_goal_plus_layout", "-o", o]);
+    let err = String::from_utf8_lossy(&wrong.stderr);
+    assert!(!wrong.status.success() && err.contains("--suites libero_goal --categories layout"), "{err}");
     // every Layout variant: the 696 when built, else an error that names the set-up step
     let all =
         pipeline(&["specs", "--benchmark", "libero-plus", "--categories", "layout", "--base-trials", "0", "-o", o]);

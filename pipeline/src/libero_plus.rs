@@ -286,6 +286,13 @@ pub fn spec_batch(bundles: &Path, opts: &PlusOptions) -> Result<RecordBatch> {
     };
     let mut rows = Rows::default();
     for suite in opts.suites {
+        if suite.perturbation == Some(libero_schema::Perturbation::PlusLayout) {
+            bail!(
+                "{suite} holds LIBERO-Plus's Layout variants of {}: ask for them with --suites {} --categories layout",
+                suite.base.name(),
+                suite.base.name()
+            );
+        }
         if suite.perturbation.is_some() || suite.base == libero_schema::protocol::BaseSuite::Libero90 {
             bail!(
                 "LIBERO-Plus perturbs libero_spatial, libero_object, libero_goal and libero_10; {suite} is none of them"

@@ -28,23 +28,31 @@ pub struct Args {
     out: PathBuf,
 }
 
-/// Does the session's run hold LIBERO-Plus rows?
-pub async fn has_plus_rows(ctx: &datafusion::prelude::SessionContext) -> Result<bool> {
+/// Does the session's run hold rows of spec benchmark `benchmark` (the specs' `benchmark` column)?
+async fn has_benchmark_rows(ctx: &datafusion::prelude::SessionContext, benchmark: &str) -> Result<bool> {
     let episodes = ctx.table("episodes").await?;
     let schema = episodes.schema();
     if !schema.has_column_with_unqualified_name("benchmark") || !schema.has_column_with_unqualified_name("category") {
         return Ok(false);
     }
-    session::counts_any(ctx, "SELECT count(*) FROM episodes WHERE benchmark = 'libero_plus'").await
+    session::counts_any(ctx, &format!("SELECT count(*) FROM episodes WHERE benchmark = '{benchmark}'")).await
+}
+
+/// Does the session's run hold LIBERO-Plus rows?
+pub async fn has_plus_rows(ctx: &datafusion::prelude::SessionContext) -> Result<bool> {
+    has_benchmark_rows(ctx, "libero_plus").await
 }
 
 /// Does the session's run hold LIBERO-PRO robustness-case rows?
 pub async fn has_pro_robustness_rows(ctx: &datafusion::prelude::SessionContext) -> Result<bool> {
-    let schema = ctx.table("episodes").await?.schema().clone();
-    if !schema.has_column_with_unqualified_name("benchmark") || !schema.has_column_with_unqualified_name("category") {
-        return Ok(false);
-    }
-    session::counts_any(ctx, "SELECT count(*) FROM episodes WHERE benchmark = 'libero_pro_robustness'").await
+    has_benchmark_rows(ctx, "libero_pro_robustness").await
+}
+
+/// The named columns of a query's batches, as a printable table.
+fn columns_table(batches: &[RecordBatch], columns: &[&str]) -> Result<String> {
+    let all = arrow::compute::concat_batches(&batches[0].schema(), batches)?;
+    let project: Vec<usize> = columns.iter().map(|c| all.schema().index_of(c)).collect::<Result<_, _>>()?;
+    Ok(arrow::util::pretty::pretty_format_batches(&[all.project(&project)?])?.to_string())
 }
 
 /// LIBERO-PRO's robustness cases, per suite × case.
@@ -73,27 +81,26 @@ pub fn run(args: Args) -> Result<()> {
         if pro {
             let cases = pro_robustness_cases(&ctx).await?;
             write_csv(&args.out.join("pro_robustness_cases.csv"), &cases)?;
-            let all = arrow::compute::concat_batches(&cases[0].schema(), &cases)?;
-            let project: Vec<usize> = [
-                "base_suite",
-                "robustness_case",
-                "n_total",
-                "n_errors",
-                "success_rate",
-                "ci_lo",
-                "ci_hi",
-                "paired",
-                "base_rate",
-                "drop_from_base",
-                "drop_lo",
-                "drop_hi",
-                "mcnemar_p",
-            ]
-            .iter()
-            .map(|c| all.schema().index_of(c))
-            .collect::<Result<_, _>>()?;
+            let table = columns_table(
+                &cases,
+                &[
+                    "base_suite",
+                    "robustness_case",
+                    "n_total",
+                    "n_errors",
+                    "success_rate",
+                    "ci_lo",
+                    "ci_hi",
+                    "paired",
+                    "base_rate",
+                    "drop_from_base",
+                    "drop_lo",
+                    "drop_hi",
+                    "mcnemar_p",
+                ],
+            )?;
             println!("LIBERO-PRO robustness cases (success definition: {})", args.scoring.describe());
-            println!("{}", arrow::util::pretty::pretty_format_batches(&[all.project(&project)?])?);
+            println!("{table}");
             println!("wrote {}/pro_robustness_cases.csv", args.out.display());
             if !plus {
                 return Ok(());
@@ -103,28 +110,27 @@ pub fn run(args: Args) -> Result<()> {
         write_csv(&args.out.join("generalisation.csv"), &cells)?;
         write_csv(&args.out.join("generalisation_summary.csv"), &summary)?;
         println!("success definition: {}", args.scoring.describe());
-        let by_suite = arrow::compute::concat_batches(&cells[0].schema(), &cells)?;
-        let project: Vec<usize> = [
-            "base_suite",
-            "category",
-            "difficulty",
-            "n_total",
-            "n_errors",
-            "success_rate",
-            "ci_lo",
-            "ci_hi",
-            "paired",
-            "base_rate",
-            "base_n_errors",
-            "drop_from_base",
-            "drop_lo",
-            "drop_hi",
-            "suite_base_rate",
-        ]
-            .iter()
-            .map(|c| by_suite.schema().index_of(c))
-            .collect::<Result<_, _>>()?;
-        println!("{}", arrow::util::pretty::pretty_format_batches(&[by_suite.project(&project)?])?);
+        let table = columns_table(
+            &cells,
+            &[
+                "base_suite",
+                "category",
+                "difficulty",
+                "n_total",
+                "n_errors",
+                "success_rate",
+                "ci_lo",
+                "ci_hi",
+                "paired",
+                "base_rate",
+                "base_n_errors",
+                "drop_from_base",
+                "drop_lo",
+                "drop_hi",
+                "suite_base_rate",
+            ],
+        )?;
+        println!("{table}");
         println!("{}", arrow::util::pretty::pretty_format_batches(&summary)?);
         println!("(n_errors, base_n_errors: episodes that ended in an error row, counted as failures in the rates)");
         println!(

@@ -167,7 +167,7 @@ impl LiberoEnv {
         if self.moves.runtime.is_some() {
             return Ok(());
         }
-        let m = m.clone();
+        // checked before every step until it fires: nothing is cloned or allocated here
         let body = self.object_root_body(&m.shift.object)?;
         let eef = self.data.site_xpos()[self.eef_site];
         let obj = self.data.xpos()[body];
@@ -175,6 +175,7 @@ impl LiberoEnv {
         if distance > m.trigger_distance && self.steps < m.fallback_step {
             return Ok(());
         }
+        let m = m.clone();
         let placement = self.placement(&m.shift.object)?;
         let delta = self.shift_safely(&m.shift, placement)?;
         self.moves.runtime = Some(AppliedMove { at_step: self.steps, delta_xy: delta });

@@ -7,6 +7,10 @@
 //! LIBERO-PRO's robustness cases with their shipped values. The policy's own time is left out, so
 //! the overhead is measured against the cheapest episode there is; the goal is ≤ 5%. The
 //! median and the minimum over the repeats are printed (the minimum resists a busy machine).
+//!
+//! `--camera-category` times instead every view of the suite's LIBERO-Plus Camera variants against
+//! the nominal Plus view: a view's cost is its picture's (Mesa's 4× multisampled rasteriser pays
+//! for the edges in sight), so one view says little and the category's weighted mean is the figure.
 
 use crate::bench::bench_action;
 use anyhow::Result;
@@ -36,6 +40,18 @@ pub struct PerturbationArgs {
     /// Interleaved repetitions; the median is printed.
     #[arg(long, default_value_t = 3)]
     repeats: usize,
+    /// Time only the cases whose name contains one of these (comma-separated), beside the
+    /// unperturbed one.
+    #[arg(long, value_delimiter = ',')]
+    only: Vec<String>,
+    /// Instead of one case per hook, time every distinct view of the suite's LIBERO-Plus Camera
+    /// variants against the nominal Plus view, and print the distribution of the overhead (each
+    /// view weighted by its number of variants, as the category's episodes are).
+    #[arg(long)]
+    camera_category: bool,
+    /// With --camera-category: time every Nth view only (in the order of their parameters).
+    #[arg(long, default_value_t = 1)]
+    every: usize,
 }
 
 /// One configuration: its name, the env edits, and the noise on every frame.
@@ -145,6 +161,43 @@ pub fn run(bundles: &Path, args: PerturbationArgs) -> Result<()> {
             None,
         ),
     ]);
+    // the views of the suite's Camera variants, with how many variants each has
+    let mut weights: Vec<f64> = vec![1.0; cases.len()];
+    if args.camera_category {
+        let catalogue = crate::libero_plus::Catalogue::open(bundles)?;
+        let mut views: std::collections::BTreeMap<[i32; 5], usize> = Default::default();
+        for e in catalogue.variants.get(&args.suite.name()).into_iter().flatten() {
+            if let Ok((_, crate::libero_plus::Perturbation::Camera { view })) = crate::libero_plus::parse_name(&e.name) {
+                *views.entry(view).or_default() += 1;
+            }
+        }
+        anyhow::ensure!(!views.is_empty(), "no LIBERO-Plus Camera variants of {} in the variant table", args.suite);
+        let nominal = viewpoint::nominal_agentview(&bundle.task.problem)?;
+        let case = |name: String, v: [i32; 5]| {
+            let [h, e, d, r, t] = v.map(f64::from);
+            let view = ViewParams { azimuth_deg: h, elevation_deg: e, distance_pct: d, pan_deg: r, tilt_deg: t };
+            Case {
+                name,
+                edits: EpisodeEdits { agentview: Some(viewpoint::plus_agentview(nominal, &view)), ..Default::default() },
+                noise: None,
+                dark: None,
+            }
+        };
+        cases = vec![case("none (nominal Plus view)".into(), [0, 0, 100, 0, 0])];
+        weights = vec![0.0];
+        for (v, n) in views.iter().step_by(args.every.max(1)) {
+            cases.push(case(format!("view {v:?}"), *v));
+            weights.push(*n as f64);
+        }
+    }
+    if !args.only.is_empty() {
+        let keep: Vec<bool> =
+            cases.iter().enumerate().map(|(i, c)| i == 0 || args.only.iter().any(|o| c.name.contains(o.as_str()))).collect();
+        let mut k = keep.iter();
+        cases.retain(|_| *k.next().unwrap());
+        let mut k = keep.iter();
+        weights.retain(|_| *k.next().unwrap());
+    }
     let mut times: Vec<Vec<f64>> = vec![Vec::new(); cases.len()];
     for _ in 0..args.repeats {
         for (i, case) in cases.iter().enumerate() {
@@ -182,6 +235,9 @@ pub fn run(bundles: &Path, args: PerturbationArgs) -> Result<()> {
         "{} task {}, {} policy steps per episode, agentview {}x{}, median of {} (reset + render + env step; no policy):",
         args.suite, args.task, args.steps, args.size, args.size, args.repeats
     );
+    if args.camera_category {
+        return print_camera_category(&cases, &times, &weights, base, base_min);
+    }
     println!("{:<28} {:>12} {:>10} {:>12} {:>10}", "perturbation", "ms per step", "overhead", "min ms", "overhead");
     for (case, t) in cases.iter().zip(&times) {
         let (m, lo) = (median(t), min(t));
@@ -193,6 +249,54 @@ pub fn run(bundles: &Path, args: PerturbationArgs) -> Result<()> {
             lo,
             100.0 * (lo - base_min) / base_min
         );
+    }
+    Ok(())
+}
+
+/// The overhead of a suite's Camera variants against the nominal view: its weighted mean (what
+/// the category adds to its episodes), the quantiles over views, and the five costliest views.
+fn print_camera_category(cases: &[Case], times: &[Vec<f64>], weights: &[f64], base: f64, base_min: f64) -> Result<()> {
+    let median = |v: &[f64]| {
+        let mut v = v.to_vec();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let min = |v: &[f64]| v.iter().copied().fold(f64::INFINITY, f64::min);
+    // (overhead of the median, overhead of the minimum, weight, name)
+    let mut rows: Vec<(f64, f64, f64, &str)> = cases
+        .iter()
+        .zip(times)
+        .zip(weights)
+        .skip(1)
+        .map(|((c, t), w)| (100.0 * (median(t) - base) / base, 100.0 * (min(t) - base_min) / base_min, *w, c.name.as_str()))
+        .collect();
+    anyhow::ensure!(!rows.is_empty(), "no view left to time: --only matched none of the suite's Camera views");
+    let total: f64 = rows.iter().map(|r| r.2).sum();
+    let mean = |f: fn(&(f64, f64, f64, &str)) -> f64| rows.iter().map(|r| f(r) * r.2).sum::<f64>() / total;
+    println!("nominal Plus view: {base:.2} ms per step (min {base_min:.2})");
+    println!(
+        "{} views ({} variants): overhead weighted by variants, mean {:+.1}% (of the minima {:+.1}%)",
+        rows.len(),
+        total,
+        mean(|r| r.0),
+        mean(|r| r.1)
+    );
+    rows.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let q = |p: f64| rows[((rows.len() - 1) as f64 * p).round() as usize].0;
+    println!(
+        "over views: min {:+.1}%, p25 {:+.1}%, median {:+.1}%, p75 {:+.1}%, p90 {:+.1}%, max {:+.1}%",
+        q(0.0),
+        q(0.25),
+        q(0.5),
+        q(0.75),
+        q(0.9),
+        q(1.0)
+    );
+    let over = rows.iter().filter(|r| r.0 > 5.0).map(|r| r.2 as usize).sum::<usize>();
+    println!("variants whose view adds more than 5%: {over} of {total}");
+    println!("costliest views (H, V, S, R, E):");
+    for r in rows.iter().rev().take(5) {
+        println!("  {:<32} {:+.1}% (min {:+.1}%), {} variants", r.3, r.0, r.1, r.2);
     }
     Ok(())
 }

@@ -1,6 +1,7 @@
 //! Naming a policy on the command line and recording its identity in the run manifest.
 
 use crate::remote::openpi::{LIBERO_REPLAN_STEPS, OpenpiConfig, OpenpiPolicy};
+use crate::remote::vla_eval::{VlaEvalConfig, VlaEvalPolicy};
 use crate::{Expert, ExpertDrop, LiftPolicy, NanAtPolicy, Policy, PolicyError, RandomPolicy};
 use std::fmt;
 use std::str::FromStr;
@@ -27,6 +28,9 @@ pub enum PolicySpec {
     OpenVla { dir: std::path::PathBuf, unnorm_key: Option<String>, batch: Option<Batching> },
     /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`).
     Openpi { url: String, replan_steps: usize },
+    /// A model served by vla-eval's model server (`vla-eval:ws://host:port`): the server's
+    /// observation params from its HELLO decide what is sent; it keeps the action chunks.
+    VlaEval { url: String },
 }
 
 /// How a model policy's forwards are shared between the rollout workers (`batch=N[&wait_ms=W]`).
@@ -72,6 +76,7 @@ impl PolicySpec {
                 replan_steps: *replan_steps,
                 ..OpenpiConfig::new(url.clone())
             })?),
+            PolicySpec::VlaEval { url } => Box::new(VlaEvalPolicy::connect(VlaEvalConfig::new(url.clone()))?),
         })
     }
 
@@ -83,7 +88,13 @@ impl PolicySpec {
     /// Whether the policy is given camera images (a learned VLA); the baselines, diagnostics and
     /// the privileged expert see none, so a perturbation of the images means nothing to them.
     pub fn sees_cameras(&self) -> bool {
-        matches!(self, PolicySpec::TorchScript { .. } | PolicySpec::OpenVla { .. } | PolicySpec::Openpi { .. })
+        matches!(
+            self,
+            PolicySpec::TorchScript { .. }
+                | PolicySpec::OpenVla { .. }
+                | PolicySpec::Openpi { .. }
+                | PolicySpec::VlaEval { .. }
+        )
     }
 
     /// Baselines are expected to fail; results warn when one scores above 5%.
@@ -100,6 +111,7 @@ impl PolicySpec {
                 ..OpenpiConfig::new(url.clone())
             })?
             .identity()),
+            PolicySpec::VlaEval { url } => Ok(VlaEvalPolicy::connect(VlaEvalConfig::new(url.clone()))?.identity()),
             #[cfg(feature = "torch")]
             PolicySpec::TorchScript { file, batch } => {
                 Ok(crate::torchscript::TorchScriptModel::load(file)?.identity(batch.map(|b| b.max_episodes)))
@@ -144,6 +156,10 @@ impl PolicySpec {
                 "kind": "remote", "name": "openpi", "url": url, "replan_steps": replan_steps,
                 "server_metadata": "read at run start (resolve_identity)",
             }),
+            PolicySpec::VlaEval { url } => serde_json::json!({
+                "kind": "remote", "name": "vla-eval", "url": url,
+                "server_hello": "read at run start (resolve_identity)",
+            }),
             PolicySpec::ExpertDrop => serde_json::json!({
                 "kind": "diagnostic", "name": "expert-drop", "privileged": true,
                 "forced": "the expert opens its gripper 5 steps into its first carry, then holds still",
@@ -177,6 +193,7 @@ impl fmt::Display for PolicySpec {
                 write!(f, "openpi:{url}")
             }
             PolicySpec::Openpi { url, replan_steps } => write!(f, "openpi:{url}?replan={replan_steps}"),
+            PolicySpec::VlaEval { url } => write!(f, "vla-eval:{url}"),
         }
     }
 }
@@ -190,6 +207,7 @@ impl FromStr for PolicySpec {
             "expert" => Ok(PolicySpec::Expert),
             "expert-drop" => Ok(PolicySpec::ExpertDrop),
             _ if s.starts_with("openpi:") => parse_openpi(&s["openpi:".len()..]),
+            _ if s.starts_with("vla-eval:") => parse_vla_eval(&s["vla-eval:".len()..]),
             _ if s.starts_with("openvla:") && s.len() > "openvla:".len() => parse_openvla(&s["openvla:".len()..]),
             _ if s.starts_with("torchscript:") && s.len() > "torchscript:".len() => {
                 parse_torchscript(&s["torchscript:".len()..])
@@ -197,7 +215,7 @@ impl FromStr for PolicySpec {
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => Err(format!(
-                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N]; diagnostics: nan-at:<policy step>, expert-drop"
+                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N]; diagnostics: nan-at:<policy step>, expert-drop"
                 )),
             },
         }
@@ -360,9 +378,33 @@ fn parse_openpi(rest: &str) -> Result<PolicySpec, String> {
     Ok(PolicySpec::Openpi { url: url.to_string(), replan_steps })
 }
 
+/// `ws://host:port` of `vla-eval:...` (no options: the server's HELLO says what to send).
+fn parse_vla_eval(url: &str) -> Result<PolicySpec, String> {
+    if !url.starts_with("ws://") || url.len() == "ws://".len() {
+        return Err(format!(
+            "vla-eval:{url}: the server address must be a ws:// URL, e.g. vla-eval:ws://localhost:8000"
+        ));
+    }
+    if url.contains('?') {
+        return Err(format!("vla-eval:{url}: takes no options (the server's observation params decide what is sent)"));
+    }
+    Ok(PolicySpec::VlaEval { url: url.to_string() })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn vla_eval_specs_parse_and_print_back() {
+        let p: PolicySpec = "vla-eval:ws://localhost:8000".parse().unwrap();
+        assert_eq!(p, PolicySpec::VlaEval { url: "ws://localhost:8000".into() });
+        assert_eq!(p.to_string(), "vla-eval:ws://localhost:8000");
+        assert!(p.sees_cameras());
+        assert!("vla-eval:localhost:8000".parse::<PolicySpec>().unwrap_err().contains("ws://"));
+        assert!("vla-eval:ws://h:1?replan=2".parse::<PolicySpec>().unwrap_err().contains("no options"));
+        assert!("nope".parse::<PolicySpec>().unwrap_err().contains("vla-eval:ws://host:port"));
+    }
 
     #[test]
     fn openpi_specs_parse_and_print_back() {

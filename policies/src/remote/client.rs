@@ -87,10 +87,8 @@ impl Write for DeadlineStream {
 /// A connected openpi policy server: the websocket and the metadata it sent first.
 #[derive(Debug)]
 pub struct OpenpiConnection {
-    url: String,
-    ws: Option<WebSocket<DeadlineStream>>,
+    ws: WsConnection,
     metadata: Value,
-    request_timeout: Duration,
 }
 
 impl OpenpiConnection {
@@ -103,6 +101,51 @@ impl OpenpiConnection {
         connect_timeout: Duration,
         request_timeout: Duration,
     ) -> Result<Self, RemoteError> {
+        let (mut ws, deadline) = WsConnection::connect(url, api_key, connect_timeout, request_timeout)?;
+        let metadata = ws.receive(deadline, connect_timeout, "reading the server's metadata")?;
+        Ok(OpenpiConnection { ws, metadata })
+    }
+
+    /// The server's metadata message, as decoded.
+    pub fn metadata(&self) -> &Value {
+        &self.metadata
+    }
+
+    pub fn url(&self) -> &str {
+        self.ws.url()
+    }
+
+    /// False after any failure: the connection is closed and must be replaced.
+    pub fn is_open(&self) -> bool {
+        self.ws.is_open()
+    }
+
+    /// One request: sends `obs` (a map) and returns the reply map, within the request timeout.
+    pub fn infer(&mut self, obs: &Value) -> Result<Value, RemoteError> {
+        self.ws.request(obs, "sending the observation", "waiting for the actions")
+    }
+}
+
+/// One websocket to a policy server whose messages are msgpack maps (openpi's, vla-eval's), with
+/// deadlines on every read and write and closed for good after any failure. The protocol on top
+/// (who speaks first, what a request is) is the caller's.
+#[derive(Debug)]
+pub struct WsConnection {
+    url: String,
+    ws: Option<WebSocket<DeadlineStream>>,
+    request_timeout: Duration,
+}
+
+impl WsConnection {
+    /// Connects to `url` (`ws://host:port[/path]`, or `host:port`) and does the websocket
+    /// handshake within `connect_timeout`; returns the connection and the connect deadline, for
+    /// the protocol's own greeting. `wss://` is refused: this build has no TLS.
+    pub fn connect(
+        url: &str,
+        api_key: Option<&str>,
+        connect_timeout: Duration,
+        request_timeout: Duration,
+    ) -> Result<(Self, Instant), RemoteError> {
         let url = if url.contains("://") { url.to_string() } else { format!("ws://{url}") };
         let address = |detail: String| RemoteError::Address { url: url.clone(), detail };
         let connect = |detail: String| RemoteError::Connect { url: url.clone(), detail };
@@ -158,14 +201,7 @@ impl OpenpiConnection {
                 return Err(RemoteError::Timeout { url, timeout: connect_timeout, during: "websocket handshake" });
             }
         };
-        let mut conn = OpenpiConnection { url, ws: Some(ws), metadata: Value::Nil, request_timeout };
-        conn.metadata = conn.receive(deadline, connect_timeout, "reading the server's metadata")?;
-        Ok(conn)
-    }
-
-    /// The server's metadata message, as decoded.
-    pub fn metadata(&self) -> &Value {
-        &self.metadata
+        Ok((WsConnection { url, ws: Some(ws), request_timeout }, deadline))
     }
 
     pub fn url(&self) -> &str {
@@ -177,22 +213,44 @@ impl OpenpiConnection {
         self.ws.is_some()
     }
 
-    /// One request: sends `obs` (a map) and returns the reply map, within the request timeout.
-    pub fn infer(&mut self, obs: &Value) -> Result<Value, RemoteError> {
-        let deadline = Instant::now() + self.request_timeout;
-        let Some(ws) = self.ws.as_mut() else {
-            return Err(self.dropped("sending a request", "the connection was closed after an earlier failure".into()));
-        };
-        ws.get_mut().deadline = deadline;
-        let sent = ws.send(Message::Binary(msgpack_numpy::pack(obs).into()));
-        if let Err(e) = sent {
-            return Err(self.fail(e, self.request_timeout, "sending the observation"));
-        }
-        self.receive(deadline, self.request_timeout, "waiting for the actions")
+    /// The per-request timeout this connection was opened with.
+    pub fn request_timeout(&self) -> Duration {
+        self.request_timeout
     }
 
-    /// Reads the next data message: binary → a decoded map; text → the server's error.
-    fn receive(&mut self, deadline: Instant, timeout: Duration, during: &'static str) -> Result<Value, RemoteError> {
+    /// One request: sends `msg` (a map) and returns the reply map, within the request timeout.
+    pub fn request(&mut self, msg: &Value, sending: &'static str, waiting: &'static str) -> Result<Value, RemoteError> {
+        let deadline = Instant::now() + self.request_timeout;
+        self.send(msg, deadline, self.request_timeout, sending)?;
+        self.receive(deadline, self.request_timeout, waiting)
+    }
+
+    /// Sends `msg` as one binary message, by `deadline`.
+    pub fn send(
+        &mut self,
+        msg: &Value,
+        deadline: Instant,
+        timeout: Duration,
+        during: &'static str,
+    ) -> Result<(), RemoteError> {
+        let Some(ws) = self.ws.as_mut() else {
+            return Err(self.dropped(during, "the connection was closed after an earlier failure".into()));
+        };
+        ws.get_mut().deadline = deadline;
+        match ws.send(Message::Binary(msgpack_numpy::pack(msg).into())) {
+            Ok(()) => Ok(()),
+            Err(e) => Err(self.fail(e, timeout, during)),
+        }
+    }
+
+    /// Reads the next data message by `deadline`: binary → a decoded map; text → the server's
+    /// error.
+    pub fn receive(
+        &mut self,
+        deadline: Instant,
+        timeout: Duration,
+        during: &'static str,
+    ) -> Result<Value, RemoteError> {
         loop {
             let Some(ws) = self.ws.as_mut() else {
                 return Err(self.dropped(during, "the connection was closed after an earlier failure".into()));
@@ -239,6 +297,12 @@ impl OpenpiConnection {
         RemoteError::Dropped { url: self.url.clone(), during, detail }
     }
 
+    /// Closes the connection and reports `detail` as a malformed reply (a protocol violation the
+    /// caller found in a well-formed map).
+    pub fn malformed_reply(&mut self, during: &'static str, detail: String) -> RemoteError {
+        self.malformed(during, DecodeError(detail))
+    }
+
     fn malformed(&mut self, during: &'static str, e: DecodeError) -> RemoteError {
         self.close();
         RemoteError::Malformed { url: self.url.clone(), during, detail: e.0 }
@@ -246,7 +310,7 @@ impl OpenpiConnection {
 
     /// Closes the connection without waiting: a close frame if the socket takes it at once, then
     /// the socket is dropped (a server that stopped reading costs nothing).
-    fn close(&mut self) {
+    pub fn close(&mut self) {
         if let Some(mut ws) = self.ws.take() {
             ws.get_mut().deadline = Instant::now() + Duration::from_millis(50);
             let _ = ws.close(None);
@@ -255,7 +319,7 @@ impl OpenpiConnection {
     }
 }
 
-impl Drop for OpenpiConnection {
+impl Drop for WsConnection {
     fn drop(&mut self) {
         self.close();
     }

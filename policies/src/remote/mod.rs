@@ -1,11 +1,16 @@
 //! Policies served over the network: a client of openpi's websocket policy server, so that a
-//! π0/π0.5 served by openpi (`scripts/serve_policy.py`) is evaluated unchanged.
+//! π0/π0.5 served by openpi (`scripts/serve_policy.py`) is evaluated unchanged, and a client of
+//! vla-eval's model-server protocol, which serves OFT, π0/π0.5, lerobot, GR00T, X-VLA, starVLA...
 //!
 //! - [`msgpack_numpy`]: the wire format, MessagePack with NumPy arrays as bin-keyed maps;
-//! - [`client`]: one blocking websocket connection with deadlines ([`OpenpiConnection`]): the
-//!   server's metadata first, then one observation dict per request;
+//! - [`client`]: one blocking websocket connection with deadlines ([`WsConnection`]), and
+//!   openpi's use of it ([`OpenpiConnection`]): the server's metadata first, then one
+//!   observation dict per request;
 //! - [`openpi`]: [`OpenpiPolicy`], the [`crate::Policy`] of openpi's LIBERO example (request
-//!   keys, state layout, action chunks executed `replan_steps` at a time).
+//!   keys, state layout, action chunks executed `replan_steps` at a time);
+//! - [`vla_eval`]: [`VlaEvalPolicy`], vla-eval's protocol (HELLO with the server's observation
+//!   params, episode start/end, string-keyed arrays, PNG images, ERROR frames) and what its LIBERO
+//!   benchmark sends and executes (one observation per step; the server keeps the chunk).
 //!
 //! The rollout calls [`crate::Policy::act`] synchronously from rayon workers, one policy instance
 //! per worker, so the client is blocking and owns one connection. A timeout, a dropped
@@ -34,11 +39,15 @@
 //!   reply keys such as `server_timing`); a `Value` tree does that directly, where `rmp-serde`
 //!   would need serde shims for bin-vs-str keys. Its decoder caps preallocation by declared
 //!   lengths, so a malformed reply cannot make it allocate gigabytes.
+//! - `png` (0.18, already in the workspace for the media output): vla-eval's image codec sends
+//!   camera images PNG-encoded.
 
 pub mod client;
 pub mod msgpack_numpy;
 pub mod openpi;
+pub mod vla_eval;
 
-pub use client::{OpenpiConnection, RemoteError};
+pub use client::{OpenpiConnection, RemoteError, WsConnection};
 pub use msgpack_numpy::NdArray;
 pub use openpi::{OpenpiConfig, OpenpiImages, OpenpiPolicy, RgbImage};
+pub use vla_eval::{ObservationParams, VlaEvalConfig, VlaEvalPolicy};

@@ -87,6 +87,9 @@ test_venv notebook_venv.sh nb-venv .nb-venv
 step "remote-policy venv (openpi-client, websockets: the toy openpi server of the remote-policy test)"
 test_venv remote_policy_venv.sh remote-venv .remote-venv
 
+step "vla-eval venv (vla-eval 0.8.0 --no-deps, anyio, websockets, msgpack, numpy, pillow: vla-eval's own model server in the vla-eval policy test)"
+test_venv vla_eval_venv.sh vla-eval-venv .vla-eval-venv
+
 step "OpenVLA reference venv (torch 2.11.0, transformers 4.40.1, timm 0.9.16: the tiny model of the OpenVLA parity test)"
 test_venv openvla_ref_venv.sh openvla-venv .openvla-venv
 

@@ -32,8 +32,15 @@ pub struct Args {
     /// Run location: a folder (created) or an object-store URL. Re-running on it resumes.
     #[arg(long)]
     out: String,
-    /// Policy to evaluate: random, lift (baselines) or nan-at:<step> (diagnostic).
-    #[arg(long)]
+    /// Policy to evaluate, one of:
+    ///   random | lift: baselines (score ≈ 0)
+    ///   expert: the privileged scripted expert (positive control)
+    ///   nan-at:<policy step> | expert-drop: diagnostics
+    ///   torchscript:<model.pt>[?batch=N[&wait_ms=W]]: a TorchScript module, model.json beside it
+    ///   openvla:<checkpoint dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]: OpenVLA in process
+    ///   openpi:ws://host:port[?replan=N]: openpi's policy server (replan: actions run per chunk, 5)
+    ///   vla-eval:ws://host:port: vla-eval's model server (its HELLO says which images and state)
+    #[arg(long, verbatim_doc_comment)]
     policy: PolicySpec,
     /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400);
     /// at least 1.
@@ -75,7 +82,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         && !args.allow_unseen_perturbations
     {
         bail!(
-            "spec file {}: row {row} (and maybe others) perturbs the camera images (camera_* or sensor_noise columns), but the policy {} sees no camera, so the perturbation would change nothing it acts on. Run a policy that sees (openvla:, torchscript:, openpi:), drop those columns, or pass --allow-unseen-perturbations to run it as a control.",
+            "spec file {}: row {row} (and maybe others) perturbs the camera images (camera_* or sensor_noise columns), but the policy {} sees no camera, so the perturbation would change nothing it acts on. Run a policy that sees (openvla:, torchscript:, openpi:, vla-eval:), drop those columns, or pass --allow-unseen-perturbations to run it as a control.",
             args.specs.display(),
             args.policy.name()
         );

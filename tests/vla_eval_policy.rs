@@ -247,3 +247,22 @@ fn a_dropped_connection_and_a_model_error_are_error_rows_and_the_next_episode_re
     // The episode after the drop ran on a new connection (a new server session).
     assert_ne!(observations[0]["session"], observations[6]["session"]);
 }
+
+#[test]
+fn a_server_that_changes_its_hello_mid_run_fails_the_later_episodes() {
+    // HELLO 1 is the run's identity (read at its start), HELLO 2 episode 0's connection; from
+    // HELLO 3 on the server says it is another model.
+    let d = test_dir("vla-eval", "swap");
+    let server = Server::start(&d, "swap", 0, "{}", &["--swap-after", "2"]);
+    let specs = specs(&d, "2");
+    let out = d.join("run");
+    ok(run(&specs, &out, &server.url()));
+    let rows = sql_rows(
+        &out,
+        "SELECT init_state_id, n_policy_steps, COALESCE(error_kind, 'none'), \
+         COALESCE(strpos(error, 'not the model this run started with') > 0, false) FROM episodes ORDER BY init_state_id",
+        &[],
+    );
+    assert_eq!(rows, [["0", "12", "none", "false"], ["1", "0", "policy", "true"]]);
+    assert_eq!(server.events("observation").len(), 12, "episode 1 sent nothing");
+}

@@ -25,6 +25,8 @@ Faults, by observation number n (1-based, over all connections):
   --drop-at N    abort the TCP connection instead of answering observation N
   --error-at N   the model raises on observation N (the package sends an ERROR frame and keeps
                  the connection open)
+  --swap-after N from the (N+1)-th HELLO on, the observation params carry "swapped": true (another
+                 model at the same address)
 
 Prints `listening on <port>` (port 0 picks a free one) once it accepts connections.
 """
@@ -82,6 +84,7 @@ class DummyModelServer(PredictModelServer):
         self.args = args
         self.params = json.loads(args.params)
         self.observations = 0
+        self.hellos = 0
         self.log = open(args.log, "a", buffering=1) if args.log else None
 
     def record(self, **event):
@@ -89,6 +92,9 @@ class DummyModelServer(PredictModelServer):
             self.log.write(json.dumps(event) + "\n")
 
     def get_observation_params(self):
+        self.hellos += 1
+        if self.args.swap_after and self.hellos > self.args.swap_after:
+            return {**self.params, "swapped": True}
         return dict(self.params)
 
     async def on_episode_start(self, config, ctx):
@@ -151,6 +157,7 @@ async def main():
     p.add_argument("--log", default=None)
     p.add_argument("--drop-at", type=int, default=0)
     p.add_argument("--error-at", type=int, default=0)
+    p.add_argument("--swap-after", type=int, default=0)
     args = p.parse_args()
     server = DummyModelServer(args)
     async with anyio.create_task_group() as tg:

@@ -26,6 +26,11 @@ pub enum PolicySpec {
     /// (`openvla:<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]`; with `batch`, the rollout workers'
     /// queries share forwards of up to N episodes).
     OpenVla { dir: std::path::PathBuf, unnorm_key: Option<String>, batch: Option<Batching> },
+    /// OpenVLA-OFT in process from its released LIBERO checkpoint directory (the HF files,
+    /// `action_head--*.pt`, `proprio_projector--*.pt`, `dataset_statistics.json`;
+    /// `oft:<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]`): two cameras and the state, an 8-action
+    /// chunk per query, executed whole.
+    Oft { dir: std::path::PathBuf, unnorm_key: Option<String>, batch: Option<Batching> },
     /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`).
     Openpi { url: String, replan_steps: usize },
     /// A model served by vla-eval's model server (`vla-eval:ws://host:port`): the server's
@@ -72,6 +77,7 @@ impl PolicySpec {
             PolicySpec::OpenVla { dir, unnorm_key, batch } => {
                 load_openvla(dir, unnorm_key.clone(), *batch, &self.to_string())?
             }
+            PolicySpec::Oft { dir, unnorm_key, batch } => load_oft(dir, unnorm_key.clone(), *batch, &self.to_string())?,
             PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
                 replan_steps: *replan_steps,
                 ..OpenpiConfig::new(url.clone())
@@ -92,6 +98,7 @@ impl PolicySpec {
             self,
             PolicySpec::TorchScript { .. }
                 | PolicySpec::OpenVla { .. }
+                | PolicySpec::Oft { .. }
                 | PolicySpec::Openpi { .. }
                 | PolicySpec::VlaEval { .. }
         )
@@ -120,6 +127,10 @@ impl PolicySpec {
             PolicySpec::OpenVla { dir, unnorm_key, batch } => {
                 crate::openvla::OpenVlaPolicy::identity_of(dir, unnorm_key.as_deref(), batch.map(|b| b.max_episodes))
             }
+            #[cfg(feature = "torch")]
+            PolicySpec::Oft { dir, unnorm_key, batch } => {
+                crate::openvla::OftPolicy::identity_of(dir, unnorm_key.as_deref(), batch.map(|b| b.max_episodes))
+            }
             _ => Ok(self.identity()),
         }
     }
@@ -145,6 +156,11 @@ impl PolicySpec {
             }
             PolicySpec::OpenVla { dir, unnorm_key, batch } => serde_json::json!({
                 "kind": "openvla", "checkpoint": dir.display().to_string(), "unnorm_key": unnorm_key,
+                "batch": batch.map(|b| b.max_episodes),
+                "checkpoint_sha256": "read at run start (resolve_identity)",
+            }),
+            PolicySpec::Oft { dir, unnorm_key, batch } => serde_json::json!({
+                "kind": "openvla-oft", "checkpoint": dir.display().to_string(), "unnorm_key": unnorm_key,
                 "batch": batch.map(|b| b.max_episodes),
                 "checkpoint_sha256": "read at run start (resolve_identity)",
             }),
@@ -177,12 +193,13 @@ impl fmt::Display for PolicySpec {
             PolicySpec::Expert => f.write_str("expert"),
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
             PolicySpec::ExpertDrop => f.write_str("expert-drop"),
-            PolicySpec::OpenVla { dir, unnorm_key, batch } => {
+            PolicySpec::OpenVla { dir, unnorm_key, batch } | PolicySpec::Oft { dir, unnorm_key, batch } => {
+                let kind = if matches!(self, PolicySpec::Oft { .. }) { "oft" } else { "openvla" };
                 let mut options: Vec<String> = unnorm_key.iter().map(|k| format!("unnorm={k}")).collect();
                 options.extend(batch.iter().flat_map(Batching::options));
                 match options.is_empty() {
-                    true => write!(f, "openvla:{}", dir.display()),
-                    false => write!(f, "openvla:{}?{}", dir.display(), options.join("&")),
+                    true => write!(f, "{kind}:{}", dir.display()),
+                    false => write!(f, "{kind}:{}?{}", dir.display(), options.join("&")),
                 }
             }
             PolicySpec::TorchScript { file, batch: None } => write!(f, "torchscript:{}", file.display()),
@@ -209,13 +226,14 @@ impl FromStr for PolicySpec {
             _ if s.starts_with("openpi:") => parse_openpi(&s["openpi:".len()..]),
             _ if s.starts_with("vla-eval:") => parse_vla_eval(&s["vla-eval:".len()..]),
             _ if s.starts_with("openvla:") && s.len() > "openvla:".len() => parse_openvla(&s["openvla:".len()..]),
+            _ if s.starts_with("oft:") && s.len() > "oft:".len() => parse_oft(&s["oft:".len()..]),
             _ if s.starts_with("torchscript:") && s.len() > "torchscript:".len() => {
                 parse_torchscript(&s["torchscript:".len()..])
             }
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => Err(format!(
-                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N]; diagnostics: nan-at:<policy step>, expert-drop"
+                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N], oft:<checkpoint dir>[?unnorm=<key>][&batch=N]; diagnostics: nan-at:<policy step>, expert-drop"
                 )),
             },
         }
@@ -263,6 +281,33 @@ fn load_openvla(
         None => Ok(Box::new(OpenVlaPolicy::load(dir, unnorm_key)?)),
         Some(n) => batched(spec, n, "openvla", || OpenVlaBatchModel::load(dir, unnorm_key)),
     }
+}
+
+#[cfg(feature = "torch")]
+fn load_oft(
+    dir: &std::path::Path,
+    unnorm_key: Option<String>,
+    batch: Option<Batching>,
+    spec: &str,
+) -> Result<Box<dyn Policy>, PolicyError> {
+    use crate::openvla::{OftBatchModel, OftPolicy};
+    match batch {
+        None => Ok(Box::new(OftPolicy::load(dir, unnorm_key)?)),
+        Some(n) => batched(spec, n, "oft", || OftBatchModel::load(dir, unnorm_key)),
+    }
+}
+
+#[cfg(not(feature = "torch"))]
+fn load_oft(
+    _: &std::path::Path,
+    _: Option<String>,
+    _: Option<Batching>,
+    _: &str,
+) -> Result<Box<dyn Policy>, PolicyError> {
+    Err(PolicyError {
+        policy: "oft".into(),
+        detail: "this build has no libtorch (built without the `torch` feature)".into(),
+    })
 }
 
 #[cfg(not(feature = "torch"))]
@@ -344,12 +389,27 @@ fn batching(
 
 /// `<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]` of `openvla:...` (options in any order).
 fn parse_openvla(rest: &str) -> Result<PolicySpec, String> {
-    let (dir, options) = model_options("openvla", rest, &["unnorm", "batch", "wait_ms"])?;
+    let (dir, unnorm_key, batch) = checkpoint_options("openvla", rest)?;
+    Ok(PolicySpec::OpenVla { dir, unnorm_key, batch })
+}
+
+/// `<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]` of `oft:...` (options in any order).
+fn parse_oft(rest: &str) -> Result<PolicySpec, String> {
+    let (dir, unnorm_key, batch) = checkpoint_options("oft", rest)?;
+    Ok(PolicySpec::Oft { dir, unnorm_key, batch })
+}
+
+/// A checkpoint directory with `unnorm` and batching options.
+fn checkpoint_options(
+    kind: &str,
+    rest: &str,
+) -> Result<(std::path::PathBuf, Option<String>, Option<Batching>), String> {
+    let (dir, options) = model_options(kind, rest, &["unnorm", "batch", "wait_ms"])?;
     let unnorm_key = match options.get("unnorm") {
-        Some(&"") => return Err(format!("openvla:{rest}: expected {}", option_help("unnorm"))),
+        Some(&"") => return Err(format!("{kind}:{rest}: expected {}", option_help("unnorm"))),
         k => k.map(|k| k.to_string()),
     };
-    Ok(PolicySpec::OpenVla { dir: dir.into(), unnorm_key, batch: batching("openvla", rest, &options)? })
+    Ok((dir.into(), unnorm_key, batching(kind, rest, &options)?))
 }
 
 /// `<file>[?batch=N[&wait_ms=W]]` of `torchscript:...`.
@@ -445,7 +505,15 @@ mod tests {
             assert_eq!(p, expected, "{text}");
             assert_eq!(p.to_string(), printed);
             assert_eq!(printed.parse::<PolicySpec>().unwrap(), expected, "{printed} reads back");
+            // oft: takes the same options
+            let oft_text = text.replacen("openvla:", "oft:", 1);
+            let p: PolicySpec = oft_text.parse().unwrap();
+            let expected = PolicySpec::Oft { dir: dir.clone(), unnorm_key: unnorm.map(str::to_string), batch };
+            assert_eq!(p, expected, "{oft_text}");
+            assert_eq!(p.to_string(), printed.replacen("openvla:", "oft:", 1));
+            assert!(p.sees_cameras());
         }
+        assert!("nope".parse::<PolicySpec>().unwrap_err().contains("oft:<checkpoint dir>"));
         for (bad, says) in [
             ("openvla:/c?batch=0", "batch=N"),
             ("openvla:/c?unnorm=", "unnorm=<dataset key>"),
@@ -455,6 +523,8 @@ mod tests {
             ("openvla:/c?wait_ms=5", "needs batch=N"),
             ("openvla:/c?batch=2&wait_ms=x", "wait_ms=W"),
             ("torchscript:/m.pt?unnorm=k", "unknown option"),
+            ("oft:/c?unnorm=", "unnorm=<dataset key>"),
+            ("oft:/c?replan=8", "unknown option"),
             ("torchscript:/m.pt?batch=0", "batch=N"),
         ] {
             let e = bad.parse::<PolicySpec>().unwrap_err();

@@ -1,7 +1,8 @@
 //! The Llama-2 language model as transformers' `LlamaForCausalLM` computes it (eager attention):
 //! RMSNorm in f32, rotary embeddings on the `rotate_half` layout of the HF weights, grouped-query
 //! attention when `num_key_value_heads < num_attention_heads`, a SiLU-gated MLP, no biases, and a
-//! key/value cache for greedy decoding.
+//! key/value cache for greedy decoding; and [`Llama::forward_full`], one bidirectional forward of
+//! whole sequences (OpenVLA-OFT).
 
 use super::OpenVlaError;
 use super::config::LlamaConfig;
@@ -97,9 +98,30 @@ impl Llama {
 
     /// Runs `embeds` `[B, T, hidden]` after the cached positions; returns the logits of each row's
     /// last position (`[B, vocab]`, f32).
+    pub fn forward(&self, embeds: &Tensor, cache: &mut KvCache) -> Tensor {
+        let t = embeds.size()[1];
+        let x = self.layers_forward(embeds, cache, true);
+        let last = x.narrow(1, t - 1, 1);
+        let last = self.rms_norm(&last, &self.norm);
+        last.linear(&self.lm_head, None::<Tensor>).to_kind(Kind::Float).view([embeds.size()[0], -1])
+    }
+
+    /// One forward of whole sequences with **bidirectional** attention and no cache (OpenVLA-OFT's
+    /// parallel decoding): every position attends to every real position of its row; a row's
+    /// first `left_pad[b]` positions are padding, masked as keys, and its positions count from its
+    /// first real token. Returns the last hidden states after the final RMSNorm (transformers'
+    /// `hidden_states[-1]`), `[B, T, hidden]` in the model's dtype.
+    pub fn forward_full(&self, embeds: &Tensor, left_pad: &[i64]) -> Tensor {
+        let mut cache = self.new_cache(left_pad);
+        let x = self.layers_forward(embeds, &mut cache, false);
+        self.rms_norm(&x, &self.norm)
+    }
+
+    /// The decoder layers on `embeds` after the cached positions (causal, or bidirectional among
+    /// the real positions), the cache extended; the output before the final norm.
     // tch's `x += y` is in place (`add_`); these new tensors are built without touching their inputs
     #[allow(clippy::assign_op_pattern)]
-    pub fn forward(&self, embeds: &Tensor, cache: &mut KvCache) -> Tensor {
+    fn layers_forward(&self, embeds: &Tensor, cache: &mut KvCache, causal: bool) -> Tensor {
         let (b, t) = (embeds.size()[0], embeds.size()[1]);
         let device = embeds.device();
         let (nh, nkv) = (self.cfg.num_attention_heads, self.cfg.num_key_value_heads);
@@ -122,7 +144,7 @@ impl Llama {
         };
         // `[B or 1, 1, T, total]`: a later key, or a row's padding, gets torch.finfo(dtype).min as
         // transformers adds it (filled once per position, so a fully masked padding row stays finite)
-        let mask = (t > 1 || cache.pad.is_some()).then(|| {
+        let mask = ((causal && t > 1) || cache.pad.is_some()).then(|| {
             let min = match embeds.kind() {
                 Kind::BFloat16 => -3.3895313892515355e38,
                 Kind::Half => -65504.0,
@@ -131,7 +153,11 @@ impl Llama {
             };
             let keys = Tensor::arange(total, (Kind::Int64, device));
             let queries = Tensor::arange_start(cache.len, total, (Kind::Int64, device));
-            let mut masked = keys.unsqueeze(0).gt_tensor(&queries.unsqueeze(1)).unsqueeze(0);
+            let mut masked = if causal {
+                keys.unsqueeze(0).gt_tensor(&queries.unsqueeze(1)).unsqueeze(0)
+            } else {
+                Tensor::zeros([1, t, total], (Kind::Bool, device))
+            };
             if let Some(pad) = &cache.pad {
                 masked = masked.logical_or(&keys.view([1, 1, -1]).lt_tensor(&pad.view([-1, 1, 1])));
             }
@@ -165,8 +191,6 @@ impl Llama {
             x = x + g.linear(&l.down, None::<Tensor>);
         }
         cache.len = total;
-        let last = x.narrow(1, t - 1, 1);
-        let last = self.rms_norm(&last, &self.norm);
-        last.linear(&self.lm_head, None::<Tensor>).to_kind(Kind::Float).view([b, -1])
+        x
     }
 }

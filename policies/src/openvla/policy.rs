@@ -29,7 +29,7 @@ pub struct OpenVlaPolicy {
 }
 
 /// bf16 on a GPU (the released checkpoints' dtype), fp32 on a CPU.
-fn device_and_dtype() -> (Device, Kind) {
+pub(super) fn device_and_dtype() -> (Device, Kind) {
     let device = Device::cuda_if_available();
     (device, if device.is_cuda() { Kind::BFloat16 } else { Kind::Float })
 }
@@ -80,17 +80,22 @@ impl OpenVlaPolicy {
 
 /// sha256 over the checkpoint's small files and every weight file (name and bytes), sorted.
 fn checkpoint_hash(dir: &Path) -> Result<String, PolicyError> {
+    files_hash(dir, &["json", "safetensors"]).map_err(err)
+}
+
+/// sha256 over the files of `dir` with these extensions (name and bytes), sorted by name.
+pub(super) fn files_hash(dir: &Path, extensions: &[&str]) -> Result<String, String> {
     let mut files: Vec<_> = std::fs::read_dir(dir)
-        .map_err(|e| err(format!("{}: {e}", dir.display())))?
+        .map_err(|e| format!("{}: {e}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && p.extension().is_some_and(|x| x == "json" || x == "safetensors"))
+        .filter(|p| p.is_file() && p.extension().and_then(|x| x.to_str()).is_some_and(|x| extensions.contains(&x)))
         .collect();
     files.sort();
     let mut h = Sha256::new();
     for f in files {
         h.update(f.file_name().unwrap_or_default().as_encoded_bytes());
-        let mut file = std::fs::File::open(&f).map_err(|e| err(format!("{}: {e}", f.display())))?;
-        std::io::copy(&mut file, &mut h).map_err(|e| err(format!("{}: {e}", f.display())))?;
+        let mut file = std::fs::File::open(&f).map_err(|e| format!("{}: {e}", f.display()))?;
+        std::io::copy(&mut file, &mut h).map_err(|e| format!("{}: {e}", f.display()))?;
     }
     Ok(format!("{:x}", h.finalize()))
 }

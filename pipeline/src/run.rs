@@ -38,6 +38,8 @@ pub struct Args {
     ///   nan-at:<policy step> | expert-drop: diagnostics
     ///   torchscript:<model.pt>[?batch=N[&wait_ms=W]]: a TorchScript module, model.json beside it
     ///   openvla:<checkpoint dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]: OpenVLA in process
+    ///   oft:<checkpoint dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]: OpenVLA-OFT in process (two
+    ///     cameras + state, 8-action chunks run open loop; the dir holds action_head--*.pt etc.)
     ///   openpi:ws://host:port[?replan=N]: openpi's policy server (replan: actions run per chunk, 5)
     ///   vla-eval:ws://host:port: vla-eval's model server (its HELLO says which images and state)
     #[arg(long, verbatim_doc_comment)]
@@ -82,7 +84,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         && !args.allow_unseen_perturbations
     {
         bail!(
-            "spec file {}: row {row} (and maybe others) perturbs the camera images (camera_* or sensor_noise columns), but the policy {} sees no camera, so the perturbation would change nothing it acts on. Run a policy that sees (openvla:, torchscript:, openpi:, vla-eval:), drop those columns, or pass --allow-unseen-perturbations to run it as a control.",
+            "spec file {}: row {row} (and maybe others) perturbs the camera images (camera_* or sensor_noise columns), but the policy {} sees no camera, so the perturbation would change nothing it acts on. Run a policy that sees (openvla:, oft:, torchscript:, openpi:, vla-eval:), drop those columns, or pass --allow-unseen-perturbations to run it as a control.",
             args.specs.display(),
             args.policy.name()
         );

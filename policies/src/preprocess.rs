@@ -3,7 +3,7 @@
 //! images went through the same steps); a mismatch never raises, it only lowers the success rate.
 //!
 //! - [`image`]: 180° rotation, JPEG round trip, resize to 224 (Pillow's Lanczos or bilinear,
-//!   openpi's pad-resize), OpenVLA's center crop. [`ImagePipeline`] chains them per family.
+//!   openpi's pad-resize, OpenCV's `INTER_AREA`), OpenVLA's center crop. [`ImagePipeline`] chains them per family.
 //! - [`proprio`]: the 8-dim LIBERO state, with the quaternion sign that robosuite's
 //!   `robot0_eef_quat` has.
 //!
@@ -31,6 +31,8 @@ pub enum PreprocessError {
     ImageSize { width: u32, height: u32, bytes: usize },
     #[error("JPEG round trip: {0}")]
     Jpeg(String),
+    #[error("{0}")]
+    Unsupported(String),
 }
 
 /// How an image is brought to the model's input size.
@@ -42,6 +44,8 @@ pub enum Resize {
     Stretch { size: u32, filter: Filter },
     /// Fit inside `size × size` keeping the aspect ratio, black bars (openpi `resize_with_pad`).
     Pad { size: u32, filter: Filter },
+    /// Stretch to `size × size` with OpenCV's `INTER_AREA` ([`image::resize_area_cv2`]).
+    CvArea { size: u32 },
 }
 
 /// One policy family's image preprocessing, applied in this order: rotation, JPEG round trip,
@@ -78,6 +82,19 @@ impl ImagePipeline {
         center_crop: None,
     };
 
+    /// starVLA's LIBERO client at HEAD (`model2libero_interface.py`): rot180, Pillow bilinear
+    /// stretch to 224 (when the frame is not 224 already), no JPEG, no crop.
+    pub const STARVLA: ImagePipeline = ImagePipeline {
+        rotate_180: true,
+        jpeg_quality: None,
+        resize: Resize::Stretch { size: 224, filter: Filter::Bilinear },
+        center_crop: None,
+    };
+    /// VLA-JEPA's LIBERO client (ginwind/VLA-JEPA, the older starVLA): rot180, `cv2.resize`
+    /// `INTER_AREA` to 224, no JPEG, no crop.
+    pub const VLA_JEPA: ImagePipeline =
+        ImagePipeline { rotate_180: true, jpeg_quality: None, resize: Resize::CvArea { size: 224 }, center_crop: None };
+
     pub fn apply(&self, img: &RgbImage) -> Result<RgbImage, PreprocessError> {
         img.check()?;
         let mut x = if self.rotate_180 { image::rotate_180(img) } else { img.clone() };
@@ -88,6 +105,12 @@ impl ImagePipeline {
             Resize::None => x,
             Resize::Stretch { size, filter } => image::resize(&x, size, size, filter),
             Resize::Pad { size, filter } => image::resize_with_pad(&x, size, size, filter),
+            Resize::CvArea { size } => image::resize_area_cv2(&x, size, size).ok_or_else(|| {
+                PreprocessError::Unsupported(format!(
+                    "INTER_AREA from {}x{} to {size}x{size}: only non-integer downscales are reproduced",
+                    x.width, x.height
+                ))
+            })?,
         };
         if let Some(area) = self.center_crop {
             x = image::center_crop(&x, area);
@@ -108,6 +131,7 @@ impl ImagePipeline {
             Resize::None => {}
             Resize::Stretch { size, filter } => parts.push(format!("resize{size}:{}", filter.name())),
             Resize::Pad { size, filter } => parts.push(format!("pad{size}:{}", filter.name())),
+            Resize::CvArea { size } => parts.push(format!("resize{size}:cv2-area")),
         }
         if let Some(a) = self.center_crop {
             parts.push(format!("crop{a}:tf-bilinear"));
@@ -123,6 +147,8 @@ mod tests {
     #[test]
     fn presets_describe_themselves() {
         assert_eq!(ImagePipeline::OPENPI.describe(), "rot180,pad224:pil-bilinear");
+        assert_eq!(ImagePipeline::STARVLA.describe(), "rot180,resize224:pil-bilinear");
+        assert_eq!(ImagePipeline::VLA_JEPA.describe(), "rot180,resize224:cv2-area");
         let none = ImagePipeline { rotate_180: false, jpeg_quality: None, resize: Resize::None, center_crop: None };
         assert_eq!(none.describe(), "");
     }

@@ -1,6 +1,7 @@
 //! Naming a policy on the command line and recording its identity in the run manifest.
 
 use crate::remote::openpi::{LIBERO_REPLAN_STEPS, OpenpiConfig, OpenpiPolicy};
+use crate::remote::starvla::{StarVlaConfig, StarVlaPolicy};
 use crate::remote::vla_eval::{VlaEvalConfig, VlaEvalPolicy};
 use crate::{Expert, ExpertDrop, LiftPolicy, NanAtPolicy, Policy, PolicyError, RandomPolicy};
 use std::fmt;
@@ -36,6 +37,32 @@ pub enum PolicySpec {
     /// A model served by vla-eval's model server (`vla-eval:ws://host:port`): the server's
     /// observation params from its HELLO decide what is sent; it keeps the action chunks.
     VlaEval { url: String },
+    /// A model served by starVLA's policy server (VLA-JEPA's route;
+    /// `starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1]`):
+    /// the generation comes from the server's metadata.
+    StarVla(StarVlaOptions),
+}
+
+/// The options of `starvla:...` (see [`StarVlaConfig`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StarVlaOptions {
+    pub url: String,
+    pub unnorm_key: Option<String>,
+    pub stats: Option<std::path::PathBuf>,
+    pub chunk: Option<usize>,
+    pub state: Option<bool>,
+}
+
+impl StarVlaOptions {
+    fn config(&self) -> StarVlaConfig {
+        StarVlaConfig {
+            unnorm_key: self.unnorm_key.clone(),
+            stats: self.stats.clone(),
+            chunk: self.chunk,
+            state: self.state,
+            ..StarVlaConfig::new(self.url.clone())
+        }
+    }
 }
 
 /// How a model policy's forwards are shared between the rollout workers (`batch=N[&wait_ms=W]`).
@@ -83,6 +110,7 @@ impl PolicySpec {
                 ..OpenpiConfig::new(url.clone())
             })?),
             PolicySpec::VlaEval { url } => Box::new(VlaEvalPolicy::connect(VlaEvalConfig::new(url.clone()))?),
+            PolicySpec::StarVla(o) => Box::new(StarVlaPolicy::connect(o.config())?),
         })
     }
 
@@ -101,6 +129,7 @@ impl PolicySpec {
                 | PolicySpec::Oft { .. }
                 | PolicySpec::Openpi { .. }
                 | PolicySpec::VlaEval { .. }
+                | PolicySpec::StarVla(_)
         )
     }
 
@@ -119,6 +148,7 @@ impl PolicySpec {
             })?
             .identity()),
             PolicySpec::VlaEval { url } => Ok(VlaEvalPolicy::connect(VlaEvalConfig::new(url.clone()))?.identity()),
+            PolicySpec::StarVla(o) => Ok(StarVlaPolicy::connect(o.config())?.identity()),
             #[cfg(feature = "torch")]
             PolicySpec::TorchScript { file, batch } => {
                 Ok(crate::torchscript::TorchScriptModel::load(file)?.identity(batch.map(|b| b.max_episodes)))
@@ -176,6 +206,11 @@ impl PolicySpec {
                 "kind": "remote", "name": "vla-eval", "url": url,
                 "server_hello": "read at run start (resolve_identity)",
             }),
+            PolicySpec::StarVla(o) => serde_json::json!({
+                "kind": "remote", "name": "starvla", "url": o.url, "unnorm_key": o.unnorm_key,
+                "stats": o.stats.as_ref().map(|p| p.display().to_string()), "chunk": o.chunk, "state": o.state,
+                "server_metadata": "read at run start (resolve_identity)",
+            }),
             PolicySpec::ExpertDrop => serde_json::json!({
                 "kind": "diagnostic", "name": "expert-drop", "privileged": true,
                 "forced": "the expert opens its gripper 5 steps into its first carry, then holds still",
@@ -211,6 +246,16 @@ impl fmt::Display for PolicySpec {
             }
             PolicySpec::Openpi { url, replan_steps } => write!(f, "openpi:{url}?replan={replan_steps}"),
             PolicySpec::VlaEval { url } => write!(f, "vla-eval:{url}"),
+            PolicySpec::StarVla(o) => {
+                let mut options: Vec<String> = o.unnorm_key.iter().map(|k| format!("unnorm={k}")).collect();
+                options.extend(o.stats.iter().map(|p| format!("stats={}", p.display())));
+                options.extend(o.chunk.iter().map(|n| format!("chunk={n}")));
+                options.extend(o.state.iter().map(|s| format!("state={}", u8::from(*s))));
+                match options.is_empty() {
+                    true => write!(f, "starvla:{}", o.url),
+                    false => write!(f, "starvla:{}?{}", o.url, options.join("&")),
+                }
+            }
         }
     }
 }
@@ -225,6 +270,7 @@ impl FromStr for PolicySpec {
             "expert-drop" => Ok(PolicySpec::ExpertDrop),
             _ if s.starts_with("openpi:") => parse_openpi(&s["openpi:".len()..]),
             _ if s.starts_with("vla-eval:") => parse_vla_eval(&s["vla-eval:".len()..]),
+            _ if s.starts_with("starvla:") => parse_starvla(&s["starvla:".len()..]),
             _ if s.starts_with("openvla:") && s.len() > "openvla:".len() => parse_openvla(&s["openvla:".len()..]),
             _ if s.starts_with("oft:") && s.len() > "oft:".len() => parse_oft(&s["oft:".len()..]),
             _ if s.starts_with("torchscript:") && s.len() > "torchscript:".len() => {
@@ -233,7 +279,7 @@ impl FromStr for PolicySpec {
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => Err(format!(
-                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N], oft:<checkpoint dir>[?unnorm=<key>][&batch=N]; diagnostics: nan-at:<policy step>, expert-drop"
+                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1], torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N], oft:<checkpoint dir>[?unnorm=<key>][&batch=N]; diagnostics: nan-at:<policy step>, expert-drop"
                 )),
             },
         }
@@ -362,6 +408,9 @@ fn option_help(name: &str) -> &'static str {
         "unnorm" => "unnorm=<dataset key>",
         "batch" => "batch=N with N >= 1 (episodes per forward)",
         "wait_ms" => "wait_ms=W (with batch: most milliseconds a forward waits for an episode in progress, default 20)",
+        "stats" => "stats=<dataset_statistics.json> (the older generation's action bounds)",
+        "chunk" => "chunk=N with N >= 1 (actions executed per query)",
+        "state" => "state=0|1 (send the 8-D state)",
         _ => "?",
     }
 }
@@ -438,6 +487,39 @@ fn parse_openpi(rest: &str) -> Result<PolicySpec, String> {
     Ok(PolicySpec::Openpi { url: url.to_string(), replan_steps })
 }
 
+/// `ws://host:port[?unnorm=<key>][&stats=<file>][&chunk=N][&state=0|1]` of `starvla:...`
+/// (options in any order; which apply depends on the server's generation, checked at connect).
+fn parse_starvla(rest: &str) -> Result<PolicySpec, String> {
+    let (url, options) = model_options("starvla", rest, &["unnorm", "stats", "chunk", "state"])?;
+    if !url.starts_with("ws://") || url.len() == "ws://".len() {
+        return Err(format!(
+            "starvla:{rest}: the server address must be a ws:// URL, e.g. starvla:ws://localhost:10093"
+        ));
+    }
+    let bad = |name: &str| format!("starvla:{rest}: expected {}", option_help(name));
+    let text = |name: &str| match options.get(name) {
+        Some(&"") => Err(bad(name)),
+        v => Ok(v.map(|v| v.to_string())),
+    };
+    let chunk = match options.get("chunk") {
+        None => None,
+        Some(n) => Some(n.parse::<usize>().ok().filter(|&n| n >= 1).ok_or_else(|| bad("chunk"))?),
+    };
+    let state = match options.get("state") {
+        None => None,
+        Some(&"0") => Some(false),
+        Some(&"1") => Some(true),
+        Some(_) => return Err(bad("state")),
+    };
+    Ok(PolicySpec::StarVla(StarVlaOptions {
+        url: url.to_string(),
+        unnorm_key: text("unnorm")?,
+        stats: text("stats")?.map(Into::into),
+        chunk,
+        state,
+    }))
+}
+
 /// `ws://host:port` of `vla-eval:...` (no options: the server's HELLO says what to send).
 fn parse_vla_eval(url: &str) -> Result<PolicySpec, String> {
     if !url.starts_with("ws://") || url.len() == "ws://".len() {
@@ -454,6 +536,37 @@ fn parse_vla_eval(url: &str) -> Result<PolicySpec, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn starvla_specs_parse_in_any_option_order_and_print_back() {
+        let p: PolicySpec = "starvla:ws://localhost:10093".parse().unwrap();
+        assert_eq!(p.to_string(), "starvla:ws://localhost:10093");
+        assert!(p.sees_cameras());
+        let p: PolicySpec =
+            "starvla:ws://h:1?state=1&chunk=7&stats=/c/dataset_statistics.json&unnorm=franka".parse().unwrap();
+        let expected = StarVlaOptions {
+            url: "ws://h:1".into(),
+            unnorm_key: Some("franka".into()),
+            stats: Some("/c/dataset_statistics.json".into()),
+            chunk: Some(7),
+            state: Some(true),
+        };
+        assert_eq!(p, PolicySpec::StarVla(expected.clone()));
+        let printed = "starvla:ws://h:1?unnorm=franka&stats=/c/dataset_statistics.json&chunk=7&state=1";
+        assert_eq!(p.to_string(), printed);
+        assert_eq!(printed.parse::<PolicySpec>().unwrap(), PolicySpec::StarVla(expected));
+        for (bad, says) in [
+            ("starvla:localhost:1", "ws://"),
+            ("starvla:ws://h:1?chunk=0", "chunk=N"),
+            ("starvla:ws://h:1?state=yes", "state=0|1"),
+            ("starvla:ws://h:1?unnorm=", "unnorm=<dataset key>"),
+            ("starvla:ws://h:1?replan=2", "unknown option"),
+            ("nope", "starvla:ws://host:port"),
+        ] {
+            let e = bad.parse::<PolicySpec>().unwrap_err();
+            assert!(e.contains(says), "{bad}: {e}");
+        }
+    }
 
     #[test]
     fn vla_eval_specs_parse_and_print_back() {

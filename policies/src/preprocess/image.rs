@@ -5,6 +5,8 @@
 //! | 180° rotation | [`rotate_180`] | `img[::-1, ::-1]` | OpenVLA, OpenVLA-OFT, openpi (LIBERO renders upside down) |
 //! | JPEG round trip | [`jpeg_round_trip`] | `tf.image.encode_jpeg` + `tf.io.decode_image` (quality 95, 4:2:0, libjpeg-turbo) | OpenVLA, OpenVLA-OFT (as the RLDS dataset builder stored frames) |
 //! | resize 224 | [`resize`] with [`Filter::Lanczos`] | `tf.image.resize(method="lanczos3", antialias=True)`, reproduced as PIL `Image.resize(LANCZOS)` | OpenVLA, OpenVLA-OFT |
+//! | resize 224 | [`resize`] with [`Filter::Bilinear`] | PIL `Image.resize(BILINEAR)` | starVLA HEAD's LIBERO client |
+//! | resize 224 | [`resize_area_cv2`] | `cv2.resize(INTER_AREA)` | VLA-JEPA's LIBERO client (older starVLA) |
 //! | resize 224 | [`resize_with_pad`] with [`Filter::Bilinear`] | `openpi_client.image_tools.resize_with_pad` (PIL `BILINEAR`, black bars) | openpi (π0, π0.5) |
 //! | center crop | [`center_crop`] | `tf.image.crop_and_resize` (bilinear) of the centred box of area 0.9, between `convert_image_dtype` calls | OpenVLA / OFT checkpoints trained with image augmentation (`center_crop=True`) |
 //!
@@ -260,6 +262,84 @@ pub fn resize_with_pad(img: &RgbImage, width: u32, height: u32, filter: Filter) 
     out
 }
 
+/// OpenCV's `cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)` for a downscale by a
+/// non-integer factor (LIBERO's 256 → 224), as `resizeArea_` in `imgproc/src/resize.cpp` computes
+/// it: per axis the overlap weights of `computeResizeAreaTab` (float), each source row resampled
+/// along x into a float buffer, the rows summed with their y weights, rounded to nearest (even on
+/// ties) once at the end. Integer factors go through OpenCV's `resizeAreaFast_` (a plain block
+/// mean) and upscales through its bilinear path; neither is reproduced here, so those sizes are
+/// refused (`None`). An unchanged size is the image itself.
+pub fn resize_area_cv2(img: &RgbImage, width: u32, height: u32) -> Option<RgbImage> {
+    let (in_w, in_h) = (img.width as usize, img.height as usize);
+    let (out_w, out_h) = (width as usize, height as usize);
+    if (in_w, in_h) == (out_w, out_h) {
+        return Some(img.clone());
+    }
+    let (sx, sy) = (in_w as f64 / out_w as f64, in_h as f64 / out_h as f64);
+    let integer = |s: f64| (s - s.round()).abs() < f64::EPSILON;
+    if out_w == 0 || out_h == 0 || sx < 1.0 || sy < 1.0 || (integer(sx) && integer(sy)) {
+        return None;
+    }
+    let xtab = area_tab(in_w, out_w, sx);
+    let ytab = area_tab(in_h, out_h, sy);
+    let mut out = RgbImage::black(width, height);
+    let mut buf = vec![0f32; out_w * 3];
+    let mut sum = vec![0f32; out_w * 3];
+    let mut prev_dy = None;
+    for &(dy, sy, beta) in &ytab {
+        buf.iter_mut().for_each(|b| *b = 0.0);
+        for &(dx, sx, alpha) in &xtab {
+            for c in 0..3 {
+                buf[dx * 3 + c] += img.px(sx, sy, c) as f32 * alpha;
+            }
+        }
+        if prev_dy != Some(dy) {
+            if let Some(p) = prev_dy {
+                write_row(&mut out, p, &sum);
+            }
+            sum.iter_mut().zip(&buf).for_each(|(s, b)| *s = beta * b);
+            prev_dy = Some(dy);
+        } else {
+            sum.iter_mut().zip(&buf).for_each(|(s, b)| *s += beta * b);
+        }
+    }
+    if let Some(p) = prev_dy {
+        write_row(&mut out, p, &sum);
+    }
+    Some(out)
+}
+
+/// `computeResizeAreaTab`: (destination index, source index, weight) triples.
+fn area_tab(ssize: usize, dsize: usize, scale: f64) -> Vec<(usize, usize, f32)> {
+    let mut tab = Vec::new();
+    for dx in 0..dsize {
+        let fsx1 = dx as f64 * scale;
+        let fsx2 = fsx1 + scale;
+        let cell = scale.min(ssize as f64 - fsx1);
+        let mut sx2 = fsx2.floor() as i64;
+        sx2 = sx2.min(ssize as i64 - 1);
+        let sx1 = (fsx1.ceil() as i64).min(sx2);
+        if sx1 as f64 - fsx1 > 1e-3 {
+            tab.push((dx, (sx1 - 1) as usize, ((sx1 as f64 - fsx1) / cell) as f32));
+        }
+        for sx in sx1..sx2 {
+            tab.push((dx, sx as usize, (1.0 / cell) as f32));
+        }
+        if fsx2 - sx2 as f64 > 1e-3 {
+            tab.push((dx, sx2 as usize, ((fsx2 - sx2 as f64).min(1.0).min(cell) / cell) as f32));
+        }
+    }
+    tab
+}
+
+/// `saturate_cast<uchar>(float)`: round half to even, clamp to [0, 255].
+fn write_row(out: &mut RgbImage, y: usize, sum: &[f32]) {
+    let w = out.width as usize;
+    for (i, &v) in sum.iter().enumerate() {
+        out.rgb[y * w * 3 + i] = v.round_ties_even().clamp(0.0, 255.0) as u8;
+    }
+}
+
 /// OpenVLA's center crop: the centred box of `area` (a fraction of the image area; side
 /// `sqrt(area)`) cut out and resized back to the input size by `tf.image.crop_and_resize`
 /// (bilinear, half-pixel-free corner alignment), in TensorFlow's float32 arithmetic:
@@ -320,6 +400,31 @@ pub fn jpeg_round_trip(img: &RgbImage, quality: u8) -> Result<RgbImage, Preproce
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `((x*7 + y*13 + c*31 + (x*y)%17*5 + (x*x*y)%251) % 256)`: busy enough that the weights'
+    /// float rounding shows.
+    fn busy(w: u32, h: u32) -> RgbImage {
+        let px = move |x: u32, y: u32, c: u32| {
+            ((x * 7 + y * 13 + c * 31 + (x * y) % 17 * 5 + (x * x * y) % 251) % 256) as u8
+        };
+        let rgb = (0..h).flat_map(|y| (0..w).flat_map(move |x| (0..3).map(move |c| px(x, y, c))));
+        RgbImage::new(w, h, rgb.collect()).unwrap()
+    }
+
+    #[test]
+    fn inter_area_matches_opencv() {
+        // Σ (i % 1000 + 1) · out[i] of `cv2.resize(busy, (ow, oh), interpolation=cv2.INTER_AREA)`,
+        // opencv-python 4.11.0.86 (.venv); any pixel off changes the sum.
+        for (w, h, ow, oh, expected) in [(256, 256, 224, 224, 9_589_017_551u64), (100, 60, 37, 23, 147_743_736)] {
+            let out = resize_area_cv2(&busy(w, h), ow, oh).unwrap();
+            assert_eq!((out.width, out.height), (ow, oh));
+            let sum: u64 = out.rgb.iter().enumerate().map(|(i, &v)| (i as u64 % 1000 + 1) * v as u64).sum();
+            assert_eq!(sum, expected, "{w}x{h} -> {ow}x{oh}");
+        }
+        assert!(resize_area_cv2(&busy(8, 8), 4, 4).is_none(), "integer factors: OpenCV's fast path");
+        assert!(resize_area_cv2(&busy(8, 8), 10, 10).is_none(), "upscales");
+        assert_eq!(resize_area_cv2(&busy(8, 8), 8, 8).unwrap(), busy(8, 8));
+    }
 
     fn gradient(w: u32, h: u32) -> RgbImage {
         let rgb = (0..h).flat_map(|y| (0..w).flat_map(move |x| [(x * 7) as u8, (y * 5) as u8, ((x + y) * 3) as u8]));

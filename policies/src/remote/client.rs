@@ -324,3 +324,24 @@ impl Drop for WsConnection {
         self.close();
     }
 }
+
+/// Checks that the server at `url` greets with what it sent first in this process (`what`: the
+/// protocol's greeting, "HELLO" or "metadata"; kept apart per protocol). The rollout makes a
+/// policy (a connection) per episode, and the run's identity is the greeting read at its start: a
+/// server swapped for another at the same address mid-run must fail its episodes, not mix two
+/// models in one run.
+pub fn same_server(what: &str, url: &str, greeting: &serde_json::Value) -> Result<(), String> {
+    type Seen = Vec<(String, String, serde_json::Value)>;
+    static FIRST: std::sync::Mutex<Seen> = std::sync::Mutex::new(Vec::new());
+    let mut first = FIRST.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    match first.iter().find(|(w, u, _)| w == what && u == url) {
+        Some((_, _, g)) if g != greeting => Err(format!(
+            "the server at {url} now sends another {what} than at the run's start (was {g}, now {greeting}): not the model this run started with"
+        )),
+        Some(_) => Ok(()),
+        None => {
+            first.push((what.to_string(), url.to_string(), greeting.clone()));
+            Ok(())
+        }
+    }
+}

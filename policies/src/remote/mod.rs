@@ -10,7 +10,11 @@
 //!   keys, state layout, action chunks executed `replan_steps` at a time);
 //! - [`vla_eval`]: [`VlaEvalPolicy`], vla-eval's protocol (HELLO with the server's observation
 //!   params, episode start/end, string-keyed arrays, PNG images, ERROR frames) and what its LIBERO
-//!   benchmark sends and executes (one observation per step; the server keeps the chunk).
+//!   benchmark sends and executes (one observation per step; the server keeps the chunk);
+//! - [`starvla`]: [`StarVlaPolicy`], starVLA's policy server (VLA-JEPA's route): metadata first,
+//!   a request/reply envelope with errors as frames, both payload generations (HEAD's
+//!   server-side unnormalisation; VLA-JEPA's normalised actions unnormalised here from the
+//!   checkpoint's `dataset_statistics.json`), action chunks executed whole.
 //!
 //! The rollout calls [`crate::Policy::act`] synchronously from rayon workers, one policy instance
 //! per worker, so the client is blocking and owns one connection. A timeout, a dropped
@@ -45,9 +49,11 @@
 pub mod client;
 pub mod msgpack_numpy;
 pub mod openpi;
+pub mod starvla;
 pub mod vla_eval;
 
 pub use client::{OpenpiConnection, RemoteError, WsConnection};
 pub use msgpack_numpy::NdArray;
 pub use openpi::{OpenpiConfig, OpenpiImages, OpenpiPolicy, RgbImage};
+pub use starvla::{Generation, StarVlaConfig, StarVlaPolicy};
 pub use vla_eval::{ObservationParams, VlaEvalConfig, VlaEvalPolicy};

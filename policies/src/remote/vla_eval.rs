@@ -363,7 +363,7 @@ impl VlaEvalPolicy {
     pub fn connect(config: VlaEvalConfig) -> Result<Self, PolicyError> {
         let conn = VlaEvalConnection::connect(&config).map_err(remote_error)?;
         let hello = msgpack_numpy::to_json(conn.hello());
-        same_server(&config.url, &hello).map_err(error)?;
+        super::client::same_server("HELLO", &config.url, &hello).map_err(error)?;
         let params =
             ObservationParams::from_hello(&hello).map_err(|e| error(format!("the server at {}: {e}", config.url)))?;
         Ok(VlaEvalPolicy {
@@ -491,24 +491,6 @@ impl Policy for VlaEvalPolicy {
     }
 }
 
-/// The first HELLO this process got from each address. The rollout makes a policy (a connection)
-/// per episode, and the run's identity is the HELLO read at its start: a server swapped for
-/// another at the same address mid-run must fail its episodes, not mix two models in one run.
-fn same_server(url: &str, hello: &serde_json::Value) -> Result<(), String> {
-    static FIRST: std::sync::Mutex<Vec<(String, serde_json::Value)>> = std::sync::Mutex::new(Vec::new());
-    let mut first = FIRST.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-    match first.iter().find(|(u, _)| u == url) {
-        Some((_, h)) if h != hello => Err(format!(
-            "the server at {url} now sends another HELLO than at the run's start (was {h}, now {hello}): not the model this run started with"
-        )),
-        Some(_) => Ok(()),
-        None => {
-            first.push((url.to_string(), hello.clone()));
-            Ok(())
-        }
-    }
-}
-
 fn error(detail: String) -> PolicyError {
     PolicyError { policy: NAME.into(), detail }
 }
@@ -551,10 +533,13 @@ mod tests {
     fn another_hello_at_the_same_address_is_refused() {
         let a = serde_json::json!({"model_server": "A", "harness_version": "0.8.0"});
         let b = serde_json::json!({"model_server": "B", "harness_version": "0.8.0"});
-        assert!(same_server("ws://test-only:1", &a).is_ok());
-        assert!(same_server("ws://test-only:1", &a).is_ok());
-        assert!(same_server("ws://test-only:1", &b).unwrap_err().contains("not the model this run started with"));
-        assert!(same_server("ws://test-only:2", &b).is_ok());
+        let same_server = super::super::client::same_server;
+        assert!(same_server("HELLO", "ws://test-only:1", &a).is_ok());
+        assert!(same_server("HELLO", "ws://test-only:1", &a).is_ok());
+        let e = same_server("HELLO", "ws://test-only:1", &b).unwrap_err();
+        assert!(e.contains("another HELLO") && e.contains("not the model this run started with"), "{e}");
+        assert!(same_server("HELLO", "ws://test-only:2", &b).is_ok());
+        assert!(same_server("metadata", "ws://test-only:1", &b).is_ok(), "kept apart per protocol");
     }
 
     #[test]

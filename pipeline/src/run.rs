@@ -42,6 +42,11 @@ pub struct Args {
     ///     cameras + state, 8-action chunks run open loop; the dir holds action_head--*.pt etc.)
     ///   openpi:ws://host:port[?replan=N]: openpi's policy server (replan: actions run per chunk, 5)
     ///   vla-eval:ws://host:port: vla-eval's model server (its HELLO says which images and state)
+    ///   starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1]:
+    ///     starVLA's policy server (VLA-JEPA): the metadata tells the generation; HEAD's servers
+    ///     unnormalise, the older one's normalised actions need stats= (unnorm: the dataset key;
+    ///     chunk: actions run per query, default the metadata's action_chunk_size, or 7; state: send
+    ///     the 8-D state, default off for HEAD, on for the older one)
     #[arg(long, verbatim_doc_comment)]
     policy: PolicySpec,
     /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400);
@@ -84,7 +89,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         && !args.allow_unseen_perturbations
     {
         bail!(
-            "spec file {}: row {row} (and maybe others) perturbs the camera images (camera_* or sensor_noise columns), but the policy {} sees no camera, so the perturbation would change nothing it acts on. Run a policy that sees (openvla:, oft:, torchscript:, openpi:, vla-eval:), drop those columns, or pass --allow-unseen-perturbations to run it as a control.",
+            "spec file {}: row {row} (and maybe others) perturbs the camera images (camera_* or sensor_noise columns), but the policy {} sees no camera, so the perturbation would change nothing it acts on. Run a policy that sees (openvla:, oft:, torchscript:, openpi:, vla-eval:, starvla:), drop those columns, or pass --allow-unseen-perturbations to run it as a control.",
             args.specs.display(),
             args.policy.name()
         );

@@ -316,6 +316,25 @@ fn an_error_frame_and_a_drop_are_error_rows_and_the_next_episode_reconnects() {
 }
 
 #[test]
+fn a_server_whose_metadata_changes_mid_run_fails_the_later_episodes() {
+    // Connection 0 is the run's identity, 1 episode 0's; from connection 2 on the server says it
+    // is another model.
+    let d = test_dir("starvla", "swap");
+    let server = Server::start(&d, "swap", 0, &["--chunk", "5", "--swap-after", "2"]);
+    let specs = specs(&d, "2");
+    let out = d.join("run");
+    ok(run(&specs, &out, &format!("starvla:{}", server.url())));
+    let rows = sql_rows(
+        &out,
+        "SELECT init_state_id, n_policy_steps, COALESCE(error_kind, 'none'), \
+         COALESCE(strpos(error, 'not the model this run started with') > 0, false) FROM episodes ORDER BY init_state_id",
+        &[],
+    );
+    assert_eq!(rows, [["0", "12", "none", "false"], ["1", "0", "policy", "true"]]);
+    assert_eq!(server.events("infer").len(), 3, "episode 1 sent nothing");
+}
+
+#[test]
 fn an_unreachable_server_fails_the_run_before_any_episode() {
     let d = test_dir("starvla", "unreachable");
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();

@@ -28,7 +28,8 @@ executed against the stored steps:
           a[t, 6] = 0.9 if t is odd else 0.2
 
 Faults, by request number n: --error-at N (the policy raises: an error envelope), --drop-at N
-(abort the TCP connection instead of answering). --tag T goes into the metadata (another server).
+(abort the TCP connection instead of answering). --tag T goes into the metadata (another server);
+--swap-after K: from the (K+1)-th connection on, the metadata says it is another model.
 Prints `listening on <port>` (port 0 picks a free one) once it accepts connections.
 """
 
@@ -181,7 +182,10 @@ class ToyServer:
         packer = msgpack_numpy.Packer()
         session = next(self.sessions)
         self.log({"event": "connect", "session": session})
-        await websocket.send(packer.pack(self.metadata))
+        metadata = self.metadata
+        if self.args.swap_after and session >= self.args.swap_after:
+            metadata = {**metadata, "tag": "swapped"}
+        await websocket.send(packer.pack(metadata))
         while True:
             try:
                 msg = msgpack_numpy.unpackb(await websocket.recv())
@@ -218,6 +222,7 @@ def main():
     p.add_argument("--error-at", type=int, default=0)
     p.add_argument("--drop-at", type=int, default=0)
     p.add_argument("--tag", default="toy")
+    p.add_argument("--swap-after", type=int, default=0)
     p.add_argument("--log", default="")
     asyncio.run(ToyServer(p.parse_args()).run())
 

@@ -17,13 +17,20 @@ if [ -f "$VENV/.complete-$KEY" ]; then exit 0; fi
 rm -rf "$VENV"
 python3 -m venv "$VENV"
 PIP=("$VENV/bin/pip" install -q --disable-pip-version-check)
+# torchvision is pinned to the release built for torch 2.11.0 and installed with it: timm pulls in
+# torchvision, and an unpinned one (0.27.1) replaced torch with 2.12.1, silently.
 if curl -sfI --max-time 10 https://download.pytorch.org/whl/cpu/torch/ >/dev/null 2>&1; then
-  "${PIP[@]}" torch==2.11.0 --index-url https://download.pytorch.org/whl/cpu
+  "${PIP[@]}" torch==2.11.0 torchvision==0.26.0 --index-url https://download.pytorch.org/whl/cpu
 else
-  "${PIP[@]}" torch==2.11.0
+  "${PIP[@]}" torch==2.11.0 torchvision==0.26.0
 fi
-"${PIP[@]}" transformers==4.40.1 tokenizers==0.19.1 timm==0.9.16 safetensors==0.4.5 numpy==1.26.4 \
-  sentencepiece==0.2.0
-"$VENV/bin/python" -c "import torch, timm, transformers, tokenizers, safetensors; torch.zeros(1)"
+"${PIP[@]}" torch==2.11.0 torchvision==0.26.0 transformers==4.40.1 tokenizers==0.19.1 timm==0.9.16 \
+  safetensors==0.4.5 numpy==1.26.4 sentencepiece==0.2.0
+"$VENV/bin/python" -c "
+import torch, torchvision, timm, transformers, tokenizers, safetensors
+torch.zeros(1)
+assert torch.__version__.split('+')[0] == '2.11.0', f'torch {torch.__version__}, not 2.11.0: the reference must run the libtorch tch links'
+assert torchvision.__version__.split('+')[0] == '0.26.0', torchvision.__version__
+"
 touch "$VENV/.complete-$KEY"
 echo "openvla reference venv ready: $VENV"

@@ -4,12 +4,11 @@
 //! msgpack-numpy, websockets) in both payload generations. The server logs what it decoded from
 //! every request and the actions it sent; the test checks that against the stored steps.
 
-use libero_e2e::{ok, pipeline, repo_root, sql_rows, test_dir};
+use libero_e2e::{LoggedServer, ok, pipeline, repo_root, spatial_task0_specs, sql_rows, test_dir};
 use serde_json::Value;
 use std::collections::BTreeMap;
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::Output;
 use std::time::{Duration, Instant};
 
 /// Wait steps before the first policy step (`--wait-steps` default, both LIBERO loops' 10).
@@ -25,64 +24,10 @@ fn python() -> PathBuf {
     py
 }
 
-struct Server {
-    child: Child,
-    port: u16,
-    log: PathBuf,
-}
-
-impl Server {
-    fn start(dir: &Path, name: &str, port: u16, args: &[&str]) -> Server {
-        let log = dir.join(format!("{name}.jsonl"));
-        let mut child = Command::new(python())
-            .arg(repo_root().join("scripts/reference/starvla_toy_server.py"))
-            .args(["--port", &port.to_string(), "--log", log.to_str().unwrap()])
-            .args(args)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start the starVLA toy server");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-        let port = line
-            .trim()
-            .strip_prefix("listening on ")
-            .and_then(|p| p.parse().ok())
-            .unwrap_or_else(|| panic!("server said {line:?}"));
-        Server { child, port, log }
-    }
-
-    fn url(&self) -> String {
-        format!("ws://127.0.0.1:{}", self.port)
-    }
-
-    fn events(&self, kind: &str) -> Vec<Value> {
-        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
-        text.lines().map(|l| serde_json::from_str::<Value>(l).unwrap()).filter(|e| e["event"] == kind).collect()
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn specs(dir: &Path, trials: &str) -> PathBuf {
-    let specs = dir.join("specs.parquet");
-    ok(pipeline(&[
-        "specs",
-        "--suites",
-        "libero_spatial",
-        "--tasks",
-        "0",
-        "--trials",
-        trials,
-        "-o",
-        specs.to_str().unwrap(),
-    ]));
-    specs
+/// The starVLA toy server, `args` its options.
+fn start_server(dir: &Path, name: &str, port: u16, args: &[&str]) -> LoggedServer {
+    let log = dir.join(format!("{name}.jsonl"));
+    LoggedServer::start(&python(), "scripts/reference/starvla_toy_server.py", port, log, args)
 }
 
 fn run(specs: &Path, run: &Path, policy: &str) -> Output {
@@ -113,7 +58,7 @@ fn steps(out: &Path) -> Vec<Vec<Vec<f64>>> {
 }
 
 /// The infer requests, grouped by connection (session), in order.
-fn by_session(server: &Server) -> Vec<Vec<Value>> {
+fn by_session(server: &LoggedServer) -> Vec<Vec<Value>> {
     let mut sessions: BTreeMap<u64, Vec<Value>> = BTreeMap::new();
     for e in server.events("infer") {
         sessions.entry(e["session"].as_u64().unwrap()).or_default().push(e);
@@ -145,8 +90,8 @@ fn check_images(e: &Value) {
 fn head_generation_actions_run_as_served_in_whole_chunks() {
     // action_chunk_size 5, 7 rows per reply: queries at policy steps 0, 5, 10; rows 5 and 6 unused.
     let d = test_dir("starvla", "head");
-    let server = Server::start(&d, "head", 0, &["--generation", "head", "--chunk", "5", "--predict", "7"]);
-    let specs = specs(&d, "2");
+    let server = start_server(&d, "head", 0, &["--generation", "head", "--chunk", "5", "--predict", "7"]);
+    let specs = spatial_task0_specs(&d, "2");
     let out = d.join("run");
     let policy = format!("starvla:{}?unnorm=franka", server.url());
     ok(run(&specs, &out, &policy));
@@ -192,7 +137,7 @@ fn head_generation_actions_run_as_served_in_whole_chunks() {
     // Another model on the same address: the run refuses to resume, before any episode.
     let port = server.port;
     drop(server);
-    let other = Server::start(&d, "other", port, &["--generation", "head", "--chunk", "5", "--tag", "other"]);
+    let other = start_server(&d, "other", port, &["--generation", "head", "--chunk", "5", "--tag", "other"]);
     let refused = run(&specs, &out, &policy);
     let stderr = String::from_utf8_lossy(&refused.stderr);
     assert!(!refused.status.success() && stderr.contains("policy_identity"), "{stderr}");
@@ -216,8 +161,8 @@ fn unnormalize(a: &[f64], min: &[f64; 7], max: &[f64; 7]) -> Vec<f64> {
 fn legacy_generation_actions_are_unnormalised_here_from_the_stats_file() {
     // {"env": "simpler_env"}: normalised actions, 7 executed per query (policy steps 0 and 7).
     let d = test_dir("starvla", "legacy");
-    let server = Server::start(&d, "legacy", 0, &["--generation", "legacy", "--predict", "8"]);
-    let specs = specs(&d, "2");
+    let server = start_server(&d, "legacy", 0, &["--generation", "legacy", "--predict", "8"]);
+    let specs = spatial_task0_specs(&d, "2");
     let (min, max) = ([-0.9, -0.8, -0.7, -0.2, -0.3, -0.4, 0.0], [0.9, 0.8, 0.95, 0.2, 0.3, 0.35, 1.0]);
     let stats = d.join("dataset_statistics.json");
     let (zeros, ones) = ([0.0; 7], [1.0; 7]);
@@ -288,8 +233,8 @@ fn an_error_frame_and_a_drop_are_error_rows_and_the_next_episode_reconnects() {
     // Chunk 5: 3 requests per full episode. Request 2 (episode 0, policy step 5) is an error
     // envelope; request 4 (episode 1, policy step 5) is dropped; episode 2 runs whole.
     let d = test_dir("starvla", "faults");
-    let server = Server::start(&d, "faults", 0, &["--chunk", "5", "--error-at", "2", "--drop-at", "4"]);
-    let specs = specs(&d, "3");
+    let server = start_server(&d, "faults", 0, &["--chunk", "5", "--error-at", "2", "--drop-at", "4"]);
+    let specs = spatial_task0_specs(&d, "3");
     let out = d.join("run");
     let t0 = Instant::now();
     ok(run(&specs, &out, &format!("starvla:{}", server.url())));
@@ -320,8 +265,8 @@ fn a_server_whose_metadata_changes_mid_run_fails_the_later_episodes() {
     // Connection 0 is the run's identity, 1 episode 0's; from connection 2 on the server says it
     // is another model.
     let d = test_dir("starvla", "swap");
-    let server = Server::start(&d, "swap", 0, &["--chunk", "5", "--swap-after", "2"]);
-    let specs = specs(&d, "2");
+    let server = start_server(&d, "swap", 0, &["--chunk", "5", "--swap-after", "2"]);
+    let specs = spatial_task0_specs(&d, "2");
     let out = d.join("run");
     ok(run(&specs, &out, &format!("starvla:{}", server.url())));
     let rows = sql_rows(
@@ -338,7 +283,7 @@ fn a_server_whose_metadata_changes_mid_run_fails_the_later_episodes() {
 fn an_unreachable_server_fails_the_run_before_any_episode() {
     let d = test_dir("starvla", "unreachable");
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-    let specs = specs(&d, "1");
+    let specs = spatial_task0_specs(&d, "1");
     let out = d.join("run");
     let t0 = Instant::now();
     let result = run(&specs, &out, &format!("starvla:ws://127.0.0.1:{port}"));

@@ -3,8 +3,9 @@
 
 use libero_sim::bundle::BundleSet;
 use libero_sim::npy::{self, Array2};
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::{Child, Command, Output, Stdio};
 
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
@@ -210,3 +211,62 @@ pub const PRO_TEST_TASKS: [(&str, u32); 16] = [
     ("libero_10_lan", 1),
     ("libero_10_task", 2),
 ];
+
+/// A protocol test's Python server (a toy, or a package's own server with a dummy model): it
+/// prints `listening on PORT` once it accepts connections and logs what it decoded and sent as
+/// one JSON object per line (`{"event": ...}`) to `log`. Killed when dropped.
+pub struct LoggedServer {
+    child: Child,
+    pub port: u16,
+    log: PathBuf,
+}
+
+impl LoggedServer {
+    /// `python script --port PORT --log LOG ARGS...` (port 0: the server picks one and says it).
+    pub fn start(python: &Path, script: &str, port: u16, log: PathBuf, args: &[&str]) -> LoggedServer {
+        let mut child = Command::new(python)
+            .arg(repo_root().join(script))
+            .args(["--port", &port.to_string(), "--log", log.to_str().unwrap()])
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| panic!("start {script}: {e}"));
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+        let port = line
+            .trim()
+            .strip_prefix("listening on ")
+            .and_then(|p| p.parse().ok())
+            .unwrap_or_else(|| panic!("{script} said {line:?}"));
+        LoggedServer { child, port, log }
+    }
+
+    pub fn url(&self) -> String {
+        format!("ws://127.0.0.1:{}", self.port)
+    }
+
+    /// The logged events of one kind, in order.
+    pub fn events(&self, kind: &str) -> Vec<serde_json::Value> {
+        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
+        text.lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+            .filter(|e| e["event"] == kind)
+            .collect()
+    }
+}
+
+impl Drop for LoggedServer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `pipeline specs` for libero_spatial task 0, `trials` episodes, written to `dir/specs.parquet`.
+pub fn spatial_task0_specs(dir: &Path, trials: &str) -> PathBuf {
+    let specs = dir.join("specs.parquet");
+    let out = specs.to_str().unwrap();
+    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0", "--trials", trials, "-o", out]));
+    specs
+}

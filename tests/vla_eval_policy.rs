@@ -5,12 +5,11 @@
 //! logs what its own decoder made of every observation and every action it sent; the test checks
 //! that against the HELLO's observation params and the stored steps.
 
-use libero_e2e::{ok, pipeline, repo_root, sql_rows, test_dir};
+use libero_e2e::{LoggedServer, ok, pipeline, repo_root, spatial_task0_specs, sql_rows, test_dir};
 use serde_json::Value;
 use std::collections::BTreeMap;
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::Output;
 use std::time::{Duration, Instant};
 
 /// OpenVLA-OFT's `get_observation_params` (vla_eval/model_servers/oft.py, two images and proprio).
@@ -27,65 +26,12 @@ fn python() -> PathBuf {
     py
 }
 
-struct Server {
-    child: Child,
-    port: u16,
-    log: PathBuf,
-}
-
-impl Server {
-    fn start(dir: &Path, name: &str, port: u16, params: &str, faults: &[&str]) -> Server {
-        let log = dir.join(format!("{name}.jsonl"));
-        let mut child = Command::new(python())
-            .arg(repo_root().join("scripts/reference/vla_eval_dummy_server.py"))
-            .args(["--port", &port.to_string(), "--params", params, "--log", log.to_str().unwrap()])
-            .args(faults)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start the vla-eval dummy server");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-        let port = line
-            .trim()
-            .strip_prefix("listening on ")
-            .and_then(|p| p.parse().ok())
-            .unwrap_or_else(|| panic!("server said {line:?}"));
-        Server { child, port, log }
-    }
-
-    fn url(&self) -> String {
-        format!("ws://127.0.0.1:{}", self.port)
-    }
-
-    /// The logged events of one kind, in order.
-    fn events(&self, kind: &str) -> Vec<Value> {
-        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
-        text.lines().map(|l| serde_json::from_str::<Value>(l).unwrap()).filter(|e| e["event"] == kind).collect()
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn specs(dir: &Path, trials: &str) -> PathBuf {
-    let specs = dir.join("specs.parquet");
-    ok(pipeline(&[
-        "specs",
-        "--suites",
-        "libero_spatial",
-        "--tasks",
-        "0",
-        "--trials",
-        trials,
-        "-o",
-        specs.to_str().unwrap(),
-    ]));
-    specs
+/// vla-eval's own model server with the dummy model: `params` its observation params (JSON),
+/// `faults` the dummy's fault options.
+fn start_server(dir: &Path, name: &str, port: u16, params: &str, faults: &[&str]) -> LoggedServer {
+    let log = dir.join(format!("{name}.jsonl"));
+    let args: Vec<&str> = ["--params", params].into_iter().chain(faults.iter().copied()).collect();
+    LoggedServer::start(&python(), "scripts/reference/vla_eval_dummy_server.py", port, log, &args)
 }
 
 fn run(specs: &Path, run: &Path, url: &str) -> Output {
@@ -105,8 +51,8 @@ fn parse(row: &[String]) -> Vec<f64> {
 #[test]
 fn a_vla_eval_served_model_gets_what_its_hello_asks_for_and_its_actions_are_stored() {
     let d = test_dir("vla-eval", "ok");
-    let server = Server::start(&d, "oft", 0, OFT_PARAMS, &[]);
-    let specs = specs(&d, "2");
+    let server = start_server(&d, "oft", 0, OFT_PARAMS, &[]);
+    let specs = spatial_task0_specs(&d, "2");
     let out = d.join("run");
     ok(run(&specs, &out, &server.url()));
     let episodes = sql_rows(
@@ -189,7 +135,7 @@ fn a_vla_eval_served_model_gets_what_its_hello_asks_for_and_its_actions_are_stor
     // Another model server on the same address: the run refuses to resume, before any episode.
     let port = server.port;
     drop(server);
-    let other = Server::start(&d, "other", port, r#"{"send_wrist_image": true}"#, &[]);
+    let other = start_server(&d, "other", port, r#"{"send_wrist_image": true}"#, &[]);
     let refused = run(&specs, &out, &other.url());
     let stderr = String::from_utf8_lossy(&refused.stderr);
     assert!(!refused.status.success() && stderr.contains("policy_identity"), "{stderr}");
@@ -200,7 +146,7 @@ fn a_vla_eval_served_model_gets_what_its_hello_asks_for_and_its_actions_are_stor
 fn an_unreachable_server_fails_the_run_before_any_episode() {
     let d = test_dir("vla-eval", "unreachable");
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-    let specs = specs(&d, "1");
+    let specs = spatial_task0_specs(&d, "1");
     let out = d.join("run");
     let t0 = Instant::now();
     let result = run(&specs, &out, &format!("ws://127.0.0.1:{port}"));
@@ -217,8 +163,8 @@ fn a_dropped_connection_and_a_model_error_are_error_rows_and_the_next_episode_re
     // No observation params: agentview only, no state. Observation 6 (episode 0, policy step 5)
     // is dropped; observation 21 (episode 2, policy step 2) makes the model raise.
     let d = test_dir("vla-eval", "faults");
-    let server = Server::start(&d, "faults", 0, "{}", &["--drop-at", "6", "--error-at", "21"]);
-    let specs = specs(&d, "3");
+    let server = start_server(&d, "faults", 0, "{}", &["--drop-at", "6", "--error-at", "21"]);
+    let specs = spatial_task0_specs(&d, "3");
     let out = d.join("run");
     let t0 = Instant::now();
     ok(run(&specs, &out, &server.url()));
@@ -253,8 +199,8 @@ fn a_server_that_changes_its_hello_mid_run_fails_the_later_episodes() {
     // HELLO 1 is the run's identity (read at its start), HELLO 2 episode 0's connection; from
     // HELLO 3 on the server says it is another model.
     let d = test_dir("vla-eval", "swap");
-    let server = Server::start(&d, "swap", 0, "{}", &["--swap-after", "2"]);
-    let specs = specs(&d, "2");
+    let server = start_server(&d, "swap", 0, "{}", &["--swap-after", "2"]);
+    let specs = spatial_task0_specs(&d, "2");
     let out = d.join("run");
     ok(run(&specs, &out, &server.url()));
     let rows = sql_rows(

@@ -167,7 +167,8 @@ pub fn run(bundles: &Path, args: PerturbationArgs) -> Result<()> {
         let catalogue = crate::libero_plus::Catalogue::open(bundles)?;
         let mut views: std::collections::BTreeMap<[i32; 5], usize> = Default::default();
         for e in catalogue.variants.get(&args.suite.name()).into_iter().flatten() {
-            if let Ok((_, crate::libero_plus::Perturbation::Camera { view })) = crate::libero_plus::parse_name(&e.name) {
+            if let Ok((_, crate::libero_plus::Perturbation::Camera { view })) = crate::libero_plus::parse_name(&e.name)
+            {
                 *views.entry(view).or_default() += 1;
             }
         }
@@ -178,7 +179,10 @@ pub fn run(bundles: &Path, args: PerturbationArgs) -> Result<()> {
             let view = ViewParams { azimuth_deg: h, elevation_deg: e, distance_pct: d, pan_deg: r, tilt_deg: t };
             Case {
                 name,
-                edits: EpisodeEdits { agentview: Some(viewpoint::plus_agentview(nominal, &view)), ..Default::default() },
+                edits: EpisodeEdits {
+                    agentview: Some(viewpoint::plus_agentview(nominal, &view)),
+                    ..Default::default()
+                },
                 noise: None,
                 dark: None,
             }
@@ -191,8 +195,11 @@ pub fn run(bundles: &Path, args: PerturbationArgs) -> Result<()> {
         }
     }
     if !args.only.is_empty() {
-        let keep: Vec<bool> =
-            cases.iter().enumerate().map(|(i, c)| i == 0 || args.only.iter().any(|o| c.name.contains(o.as_str()))).collect();
+        let keep: Vec<bool> = cases
+            .iter()
+            .enumerate()
+            .map(|(i, c)| i == 0 || args.only.iter().any(|o| c.name.contains(o.as_str())))
+            .collect();
         let mut k = keep.iter();
         cases.retain(|_| *k.next().unwrap());
         let mut k = keep.iter();
@@ -268,7 +275,9 @@ fn print_camera_category(cases: &[Case], times: &[Vec<f64>], weights: &[f64], ba
         .zip(times)
         .zip(weights)
         .skip(1)
-        .map(|((c, t), w)| (100.0 * (median(t) - base) / base, 100.0 * (min(t) - base_min) / base_min, *w, c.name.as_str()))
+        .map(|((c, t), w)| {
+            (100.0 * (median(t) - base) / base, 100.0 * (min(t) - base_min) / base_min, *w, c.name.as_str())
+        })
         .collect();
     anyhow::ensure!(!rows.is_empty(), "no view left to time: --only matched none of the suite's Camera views");
     let total: f64 = rows.iter().map(|r| r.2).sum();

@@ -14,7 +14,7 @@
 //! written by `scripts/reference/openvla_bench.py`, which also times the Python reference's forward.
 //! Without `--checkpoint` (as under a plain `cargo bench`) it says what it needs and exits.
 
-use libero_policies::openvla::OpenVlaModel;
+use libero_policies::models::openvla::OpenVlaModel;
 use libero_policies::preprocess::RgbImage;
 use std::path::PathBuf;
 use std::time::Instant;

@@ -1,9 +1,21 @@
 //! # libero-policies
 //!
-//! The [`Policy`] seam between the rollout and the models it evaluates, and its implementations
-//! (baselines and a privileged scripted [`Expert`] now; TorchScript, OpenVLA in-process on tch and a remote client with the policy
-//! issue). It knows nothing of MuJoCo: policies see an [`Observation`] (proprio state and the
-//! instruction; images with the media issue) and return 7-dim actions.
+//! The [`Policy`] seam between the rollout and the models it evaluates, and its implementations.
+//! It knows nothing of MuJoCo: a policy sees an [`Observation`] (proprio state, the instruction,
+//! the camera images it asks for) and returns 7-dim env actions. The crate is laid out by concern:
+//!
+//! | concern | where |
+//! |---|---|
+//! | the seam: [`Policy`], [`Observation`], [`PolicyError`], timing | this file |
+//! | naming a policy (`--policy` strings), its identity, making instances | [`PolicySpec`] (`spec.rs`) |
+//! | the published loops' transforms: images, state, action un-normalisation, gripper | [`preprocess`], [`postprocess`] |
+//! | driving a model: open-loop chunks, one batched forward for many episodes | [`chunking`], [`batching`] |
+//! | in-process model ports on libtorch: TorchScript, OpenVLA, OpenVLA-OFT | `models` (feature `torch`) |
+//! | clients of policy servers: openpi, vla-eval, starVLA | [`remote`] |
+//! | policies without a model: baselines, the privileged scripted [`Expert`] | `baselines.rs`, `expert/`, [`scene`] |
+//!
+//! A new model port goes under `models/`, a new server protocol under `remote/`; both reuse the
+//! transforms and the drivers, and get a [`PolicySpec`] kind.
 //!
 //! A run names its policy with a [`PolicySpec`] string (`random`, `lift`, ...). Each rollout
 //! worker makes its own instance with [`PolicySpec::instantiate`], and every episode starts with
@@ -24,14 +36,12 @@ pub mod batching;
 pub mod chunking;
 mod expert;
 #[cfg(feature = "torch")]
-pub mod openvla;
+pub mod models;
 pub mod postprocess;
 pub mod preprocess;
 pub mod remote;
 pub mod scene;
 mod spec;
-#[cfg(feature = "torch")]
-pub mod torchscript;
 
 pub use baselines::{LiftPolicy, NanAtPolicy, RandomPolicy};
 pub use expert::{Expert, ExpertDrop};

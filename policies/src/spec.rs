@@ -151,16 +151,20 @@ impl PolicySpec {
             PolicySpec::StarVla(o) => Ok(StarVlaPolicy::connect(o.config())?.identity()),
             #[cfg(feature = "torch")]
             PolicySpec::TorchScript { file, batch } => {
-                Ok(crate::torchscript::TorchScriptModel::load(file)?.identity(batch.map(|b| b.max_episodes)))
+                Ok(crate::models::torchscript::TorchScriptModel::load(file)?.identity(batch.map(|b| b.max_episodes)))
             }
             #[cfg(feature = "torch")]
-            PolicySpec::OpenVla { dir, unnorm_key, batch } => {
-                crate::openvla::OpenVlaPolicy::identity_of(dir, unnorm_key.as_deref(), batch.map(|b| b.max_episodes))
-            }
+            PolicySpec::OpenVla { dir, unnorm_key, batch } => crate::models::openvla::OpenVlaPolicy::identity_of(
+                dir,
+                unnorm_key.as_deref(),
+                batch.map(|b| b.max_episodes),
+            ),
             #[cfg(feature = "torch")]
-            PolicySpec::Oft { dir, unnorm_key, batch } => {
-                crate::openvla::OftPolicy::identity_of(dir, unnorm_key.as_deref(), batch.map(|b| b.max_episodes))
-            }
+            PolicySpec::Oft { dir, unnorm_key, batch } => crate::models::openvla::oft::OftPolicy::identity_of(
+                dir,
+                unnorm_key.as_deref(),
+                batch.map(|b| b.max_episodes),
+            ),
             _ => Ok(self.identity()),
         }
     }
@@ -308,7 +312,7 @@ fn load_torchscript(
     batch: Option<Batching>,
     spec: &str,
 ) -> Result<Box<dyn Policy>, PolicyError> {
-    use crate::torchscript::{TorchScriptModel, TorchScriptPolicy};
+    use crate::models::torchscript::{TorchScriptModel, TorchScriptPolicy};
     match batch {
         None => Ok(Box::new(TorchScriptPolicy::load(file)?)),
         Some(n) => batched(spec, n, "torchscript", || TorchScriptModel::load(file)),
@@ -322,7 +326,7 @@ fn load_openvla(
     batch: Option<Batching>,
     spec: &str,
 ) -> Result<Box<dyn Policy>, PolicyError> {
-    use crate::openvla::{OpenVlaBatchModel, OpenVlaPolicy};
+    use crate::models::openvla::{OpenVlaBatchModel, OpenVlaPolicy};
     match batch {
         None => Ok(Box::new(OpenVlaPolicy::load(dir, unnorm_key)?)),
         Some(n) => batched(spec, n, "openvla", || OpenVlaBatchModel::load(dir, unnorm_key)),
@@ -336,7 +340,7 @@ fn load_oft(
     batch: Option<Batching>,
     spec: &str,
 ) -> Result<Box<dyn Policy>, PolicyError> {
-    use crate::openvla::{OftBatchModel, OftPolicy};
+    use crate::models::openvla::oft::{OftBatchModel, OftPolicy};
     match batch {
         None => Ok(Box::new(OftPolicy::load(dir, unnorm_key)?)),
         Some(n) => batched(spec, n, "oft", || OftBatchModel::load(dir, unnorm_key)),

@@ -13,8 +13,8 @@
 //! Needs the venv of `scripts/setup/openvla_ref_venv.sh`: `$LIBERO_OPENVLA_VENV`, else
 //! `<repo>/.openvla-venv`. Fails, never skips, when neither exists.
 
-use libero_policies::openvla::oft::{self, OftModel, OftQuery};
-use libero_policies::openvla::torch_save::read_state_dict;
+use libero_policies::models::openvla::oft::{self, OftModel, OftQuery};
+use libero_policies::models::torch_save::read_state_dict;
 use libero_policies::postprocess::Gripper;
 use libero_policies::preprocess::RgbImage;
 use std::path::{Path, PathBuf};

@@ -10,7 +10,7 @@
 //! Needs the venv of `scripts/setup/openvla_ref_venv.sh`: `$LIBERO_OPENVLA_VENV`, else
 //! `<repo>/.openvla-venv`. Fails, never skips, when neither exists.
 
-use libero_policies::openvla::OpenVlaModel;
+use libero_policies::models::openvla::OpenVlaModel;
 use libero_policies::preprocess::RgbImage;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -78,7 +78,7 @@ fn tiny_openvla_matches_the_python_reference() {
     // prompt tokens (tokenizers crate vs transformers' LlamaTokenizerFast on the same tokenizer.json)
     let ids: Vec<i64> = expected["input_ids"].as_array().unwrap().iter().map(|v| v.as_i64().unwrap()).collect();
     assert_eq!(model.input_ids(instruction).unwrap(), ids, "prompt token ids");
-    assert_eq!(*ids.last().unwrap(), libero_policies::openvla::EMPTY_TOKEN);
+    assert_eq!(*ids.last().unwrap(), libero_policies::models::openvla::EMPTY_TOKEN);
 
     // the stages, for a precise diagnosis when the end result differs
     let pv = model.pixel_values(&image).unwrap();
@@ -150,7 +150,7 @@ fn tiny_openvla_matches_the_python_reference() {
     let letterboxed = pre.replace("\"tvf_do_letterbox\": false", "\"tvf_do_letterbox\": [true, true]");
     assert_ne!(pre, letterboxed);
     std::fs::write(partial.join("preprocessor_config.json"), letterboxed).unwrap();
-    let e = libero_policies::openvla::OpenVlaConfig::load(&partial).expect_err("letterbox").to_string();
+    let e = libero_policies::models::openvla::OpenVlaConfig::load(&partial).expect_err("letterbox").to_string();
     assert!(e.contains("letterbox"), "{e}");
 
     let _ = std::fs::remove_dir_all(&dir);

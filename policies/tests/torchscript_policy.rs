@@ -4,7 +4,7 @@
 //! done directly: image layout and rotation, state, chunking, un-normalisation and gripper.
 #![cfg(feature = "torch")]
 
-use libero_policies::torchscript::TorchScriptPolicy;
+use libero_policies::models::torchscript::TorchScriptPolicy;
 use libero_policies::{Action, CameraImage, CameraImages, Observation, Policy};
 use std::path::{Path, PathBuf};
 use tch::{CModule, Device, Kind, Tensor};

@@ -2,7 +2,7 @@
 
 usage: oft_tiny.py OUT_DIR [--seed N]
 
-policies/tests/oft_parity.rs checks the in-process OFT port (policies/src/openvla/oft.rs) against this
+policies/tests/oft_parity.rs checks the in-process OFT port (policies/src/models/openvla/oft/) against this
 model. The backbone is openvla_tiny.py's tiny Prismatic model (timm DINOv2 + SigLIP featurizers, the
 fused GELU projector, transformers' Llama), here with SDPA attention, as openvla-oft's `get_vla` loads
 it. What OFT adds (openvla-oft 213c5ff8, `prismatic/extern/hf/modeling_prismatic.py`

@@ -2,7 +2,7 @@
 
 usage: openvla_tiny.py OUT_DIR [--seed N]
 
-The in-process OpenVLA port (policies/src/openvla/) cannot be tested on the real 7B weights here, so
+The in-process OpenVLA port (policies/src/models/openvla/) cannot be tested on the real 7B weights here, so
 policies/tests/openvla_parity.rs checks it against this model instead: the same Prismatic
 architecture as `openvla/openvla-7b` and its LIBERO fine-tunes, built from the same library layer
 types, only narrow and shallow:

@@ -25,15 +25,13 @@
 //! same architecture: `tests/openvla_parity.rs`.
 //!
 //! [`oft`]: OpenVLA-OFT on the same backbone (two images, the proprio token, one bidirectional
-//! forward, the L1 regression head's 8 × 7 chunk), its `.pt` heads read by [`torch_save`].
+//! forward, the L1 regression head's 8 × 7 chunk), its `.pt` heads read by [`crate::models::torch_save`].
 
 pub mod action;
 pub mod config;
 mod llama;
 pub mod oft;
-mod oft_policy;
 pub mod policy;
-pub mod torch_save;
 mod vision;
 mod weights;
 
@@ -41,7 +39,6 @@ use crate::PolicyError;
 use crate::preprocess::RgbImage;
 pub use action::ActionBins;
 pub use config::OpenVlaConfig;
-pub use oft_policy::{OftBatchModel, OftPolicy};
 pub use policy::{OpenVlaBatchModel, OpenVlaPolicy};
 use std::path::Path;
 use tch::{Device, Kind, Tensor};

@@ -23,13 +23,17 @@
 //! The checkpoint directory is a released OFT LIBERO repository: the HF files of an OpenVLA
 //! checkpoint (merged LoRA), `dataset_statistics.json` with `action` and `proprio` statistics,
 //! and one `action_head--<step>_checkpoint.pt` and one `proprio_projector--<step>_checkpoint.pt`
-//! (`torch.save`d state dicts whose keys carry DDP's `module.` prefix, read by [`super::torch_save`]).
+//! (`torch.save`d state dicts whose keys carry DDP's `module.` prefix, read by [`crate::models::torch_save`]).
 //!
 //! Tested against the Python reference (transformers + timm + OFT's head and projector classes)
 //! on a tiny random-weight model in the same layout: `tests/oft_parity.rs`.
 
-use super::torch_save::read_state_dict;
+mod policy;
+
+pub use policy::{OftBatchModel, OftPolicy};
+
 use super::{OpenVlaError, OpenVlaModel, bad};
+use crate::models::torch_save::read_state_dict;
 use crate::postprocess::ActionStats;
 use crate::preprocess::RgbImage;
 use std::collections::HashMap;

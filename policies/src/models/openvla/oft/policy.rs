@@ -8,10 +8,10 @@
 //! (`num_open_loop_steps = 8`), each action's gripper `[0, 1] → sign → inverted`. bf16 on a GPU,
 //! fp32 on a CPU.
 
-use super::oft::{self, NUM_ACTIONS_CHUNK, OftModel, OftPrediction, OftQuery, PROPRIO_DIM};
-use super::policy::{device_and_dtype, files_hash};
+use super::{NUM_ACTIONS_CHUNK, OftModel, OftPrediction, OftQuery, PROPRIO_DIM};
 use crate::batching::{BatchModel, Preparer, Request};
 use crate::chunking::ActionChunker;
+use crate::models::{device_and_dtype, files_hash};
 use crate::postprocess::Gripper;
 use crate::preprocess::proprio::wxyz_to_xyzw;
 use crate::preprocess::{ImagePipeline, QuatSign, RgbImage, libero_state};
@@ -90,7 +90,7 @@ impl OftPolicy {
         unnorm_key: Option<&str>,
         batch: Option<usize>,
     ) -> Result<serde_json::Value, PolicyError> {
-        let (_, files) = oft::check_dir(dir, unnorm_key).map_err(rename)?;
+        let (_, files) = super::check_dir(dir, unnorm_key).map_err(rename)?;
         let file_hash = |p: &Path| -> Result<serde_json::Value, PolicyError> {
             use sha2::{Digest, Sha256};
             let bytes = std::fs::read(p).map_err(|e| err(format!("{}: {e}", p.display())))?;
@@ -110,7 +110,7 @@ impl OftPolicy {
                        "preprocessing": ImagePipeline::OPENVLA_OFT.describe()},
             "state": "eef_pos, quat2axisangle(robot0_eef_quat as given, no antipodal flip), gripper_qpos; \
                       BOUNDS_Q99 normalised, clipped to [-1, 1]",
-            "prompt": super::prompt("{instruction}"),
+            "prompt": super::super::prompt("{instruction}"),
             "decoding": "parallel: 56 zeroed placeholders + </s>, one bidirectional forward, L1 regression head",
             "unnormalisation": "0.5 (a + 1) (q99 - q01 + 1e-8) + q01 where mask",
             "gripper": "[0,1] -> 2g-1 -> sign -> inverted",

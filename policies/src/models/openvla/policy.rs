@@ -6,13 +6,12 @@
 
 use super::{OpenVlaModel, OpenVlaPrediction};
 use crate::batching::{BatchModel, Preparer, Request};
+use crate::models::{device_and_dtype, files_hash};
 use crate::postprocess::Gripper;
 use crate::preprocess::{ImagePipeline, RgbImage};
 use crate::{Action, Observation, Policy, PolicyError};
-use sha2::{Digest, Sha256};
 use std::path::Path;
 use std::sync::Arc;
-use tch::{Device, Kind};
 
 const NAME: &str = "openvla";
 /// The camera size of OpenVLA's LIBERO loop (`resize_size` 224 comes after).
@@ -26,12 +25,6 @@ pub struct OpenVlaPolicy {
     model: OpenVlaModel,
     unnorm_key: Option<String>,
     instruction: String,
-}
-
-/// bf16 on a GPU (the released checkpoints' dtype), fp32 on a CPU.
-pub(super) fn device_and_dtype() -> (Device, Kind) {
-    let device = Device::cuda_if_available();
-    (device, if device.is_cuda() { Kind::BFloat16 } else { Kind::Float })
 }
 
 /// A wrong or missing `unnorm_key` is an error listing the keys the checkpoint has.
@@ -81,23 +74,6 @@ impl OpenVlaPolicy {
 /// sha256 over the checkpoint's small files and every weight file (name and bytes), sorted.
 fn checkpoint_hash(dir: &Path) -> Result<String, PolicyError> {
     files_hash(dir, &["json", "safetensors"]).map_err(err)
-}
-
-/// sha256 over the files of `dir` with these extensions (name and bytes), sorted by name.
-pub(super) fn files_hash(dir: &Path, extensions: &[&str]) -> Result<String, String> {
-    let mut files: Vec<_> = std::fs::read_dir(dir)
-        .map_err(|e| format!("{}: {e}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && p.extension().and_then(|x| x.to_str()).is_some_and(|x| extensions.contains(&x)))
-        .collect();
-    files.sort();
-    let mut h = Sha256::new();
-    for f in files {
-        h.update(f.file_name().unwrap_or_default().as_encoded_bytes());
-        let mut file = std::fs::File::open(&f).map_err(|e| format!("{}: {e}", f.display()))?;
-        std::io::copy(&mut file, &mut h).map_err(|e| format!("{}: {e}", f.display()))?;
-    }
-    Ok(format!("{:x}", h.finalize()))
 }
 
 impl Policy for OpenVlaPolicy {

@@ -1,0 +1,47 @@
+//! In-process model ports on libtorch (tch; the `torch` feature): the models whose forward this
+//! crate computes itself, loaded from their released files with no Python at run time.
+//!
+//! - [`torchscript`]: any policy exported with `torch.jit.save` and a JSON manifest of its
+//!   conventions (the route for a model we have not ported).
+//! - [`openvla`]: OpenVLA's Prismatic architecture from a Hugging Face checkpoint directory (vision
+//!   towers, projector, Llama-2, token decoding), and [`openvla::oft`], OpenVLA-OFT on the same
+//!   backbone (two images, proprio token, one bidirectional forward, L1 head's 8 × 7 chunk).
+//! - [`torch_save`]: `torch.save` archives read without Python (OFT's head files).
+//!
+//! Each model is two layers: the model (load, forward, parity-tested against its Python reference
+//! on a tiny random-weight checkpoint) and its [`crate::Policy`] (the published LIBERO loop's
+//! conventions around it: cameras, preprocessing, chunking, gripper), which may serve several
+//! rollout workers through one [`crate::batching::Batcher`]. What a new port needs from the rest of
+//! the crate — image and state preprocessing, action post-processing, chunking, batching — lives
+//! outside this module, shared with the remote clients.
+
+pub mod openvla;
+pub mod torch_save;
+pub mod torchscript;
+
+use sha2::{Digest, Sha256};
+use std::path::Path;
+use tch::{Device, Kind};
+
+/// bf16 on a GPU (the released checkpoints' dtype), fp32 on a CPU.
+pub(crate) fn device_and_dtype() -> (Device, Kind) {
+    let device = Device::cuda_if_available();
+    (device, if device.is_cuda() { Kind::BFloat16 } else { Kind::Float })
+}
+
+/// sha256 over the files of `dir` with these extensions (name and bytes), sorted by name.
+pub(crate) fn files_hash(dir: &Path, extensions: &[&str]) -> Result<String, String> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .map_err(|e| format!("{}: {e}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && p.extension().and_then(|x| x.to_str()).is_some_and(|x| extensions.contains(&x)))
+        .collect();
+    files.sort();
+    let mut h = Sha256::new();
+    for f in files {
+        h.update(f.file_name().unwrap_or_default().as_encoded_bytes());
+        let mut file = std::fs::File::open(&f).map_err(|e| format!("{}: {e}", f.display()))?;
+        std::io::copy(&mut file, &mut h).map_err(|e| format!("{}: {e}", f.display()))?;
+    }
+    Ok(format!("{:x}", h.finalize()))
+}

@@ -1,8 +1,9 @@
-//! The Llama-2 language model as transformers' `LlamaForCausalLM` computes it (eager attention):
-//! RMSNorm in f32, rotary embeddings on the `rotate_half` layout of the HF weights, grouped-query
-//! attention when `num_key_value_heads < num_attention_heads`, a SiLU-gated MLP, no biases, and a
-//! key/value cache for greedy decoding; and [`Llama::forward_full`], one bidirectional forward of
-//! whole sequences (OpenVLA-OFT).
+//! The Llama-2 language model as transformers' `LlamaForCausalLM` computes it: RMSNorm in f32,
+//! rotary embeddings on the `rotate_half` layout of the HF weights, grouped-query attention when
+//! `num_key_value_heads < num_attention_heads`, a SiLU-gated MLP, no biases, and a key/value cache
+//! for greedy decoding; and [`Llama::forward_full`], one bidirectional forward of whole sequences
+//! (OpenVLA-OFT). The attention is transformers' eager or SDPA implementation ([`Attention`]),
+//! whichever the model's own loading code picks, so that bf16 results follow its reference.
 
 use super::OpenVlaError;
 use super::config::LlamaConfig;
@@ -21,8 +22,22 @@ struct Layer {
     down: Tensor,
 }
 
+/// Which of transformers' attention implementations the forward reproduces. In fp32 on a CPU they
+/// agree to ~1e-6; in bf16 on a GPU each is the arithmetic of its own kernels, and SDPA's fused
+/// kernels (flash or memory-efficient attention) also cost far less time and memory on long
+/// sequences.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Attention {
+    /// `softmax(q kᵀ / √d + mask) v` in separate kernels, the softmax in f32 (`attn_implementation="eager"`).
+    Eager,
+    /// `torch.nn.functional.scaled_dot_product_attention` with the same additive mask, or none
+    /// (`attn_implementation="sdpa"`, what openvla-oft's `get_vla` loads).
+    Sdpa,
+}
+
 pub struct Llama {
     cfg: LlamaConfig,
+    attention: Attention,
     embed: Tensor,
     layers: Vec<Layer>,
     norm: Tensor,
@@ -73,7 +88,24 @@ impl Llama {
             None if cfg.tie_word_embeddings => embed.shallow_clone(),
             None => w.take("language_model.lm_head.weight")?,
         };
-        Ok(Llama { cfg: cfg.clone(), embed, layers, norm: w.take(&format!("{p}norm.weight"))?, lm_head, inv_freq })
+        Ok(Llama {
+            cfg: cfg.clone(),
+            attention: Attention::Eager,
+            embed,
+            layers,
+            norm: w.take(&format!("{p}norm.weight"))?,
+            lm_head,
+            inv_freq,
+        })
+    }
+
+    /// The attention implementation of the following forwards.
+    pub fn set_attention(&mut self, attention: Attention) {
+        self.attention = attention;
+    }
+
+    pub fn attention(&self) -> Attention {
+        self.attention
     }
 
     /// A cache for rows whose first `left_pad[b]` positions are padding (all zero: no padding).
@@ -179,12 +211,19 @@ impl Llama {
             } else {
                 (k, v)
             };
-            let mut att = q.matmul(&k.transpose(2, 3)) / (hd as f64).sqrt();
-            if let Some(m) = &mask {
-                att = att + m;
-            }
-            let att = att.softmax(-1, Kind::Float).to_kind(q.kind());
-            let o = att.matmul(&v).transpose(1, 2).reshape([b, t, nh * hd]);
+            let o = match self.attention {
+                Attention::Eager => {
+                    let mut att = q.matmul(&k.transpose(2, 3)) / (hd as f64).sqrt();
+                    if let Some(m) = &mask {
+                        att = att + m;
+                    }
+                    att.softmax(-1, Kind::Float).to_kind(q.kind()).matmul(&v)
+                }
+                Attention::Sdpa => {
+                    Tensor::scaled_dot_product_attention(&q, &k, &v, mask.as_ref(), 0.0, false, None, false)
+                }
+            };
+            let o = o.transpose(1, 2).reshape([b, t, nh * hd]);
             x = x + o.linear(&l.o, None::<Tensor>);
             let h = self.rms_norm(&x, &l.post_norm);
             let g = h.linear(&l.gate, None::<Tensor>).silu() * h.linear(&l.up, None::<Tensor>);

@@ -39,6 +39,7 @@ use crate::PolicyError;
 use crate::preprocess::RgbImage;
 pub use action::ActionBins;
 pub use config::OpenVlaConfig;
+pub use llama::Attention;
 pub use policy::{OpenVlaBatchModel, OpenVlaPolicy};
 use std::path::Path;
 use tch::{Device, Kind, Tensor};
@@ -121,6 +122,16 @@ impl OpenVlaModel {
 
     pub fn config(&self) -> &OpenVlaConfig {
         &self.config
+    }
+
+    /// The language model's attention implementation: eager by default, as the parity reference
+    /// runs it (see [`Attention`]).
+    pub fn set_attention(&mut self, attention: Attention) {
+        self.llm.set_attention(attention);
+    }
+
+    pub fn attention(&self) -> Attention {
+        self.llm.attention()
     }
 
     /// The processor's `pixel_values` `[1, 3·backbones, H, W]` of one image already at the model's
@@ -221,17 +232,24 @@ impl OpenVlaModel {
                 .collect();
             let mut cache = self.llm.new_cache(&left_pad);
             let mut logits = self.llm.forward(&Tensor::cat(&rows, 0), &mut cache);
-            let (mut tokens, mut all) = (Vec::new(), Vec::new());
+            // the tokens stay on the device until the last step: a read-back per step would make
+            // the host wait for each step's kernels before it could queue the next step's
+            let (mut next_tokens, mut all) = (Vec::new(), Vec::new());
             for step in 0..stats.dim() {
                 let next = logits.argmax(-1, false);
-                tokens.push(Vec::<i64>::try_from(&next.to_device(Device::Cpu)).expect("argmax is int64"));
                 if step + 1 < stats.dim() {
                     let following = self.llm.forward(&self.llm.embed(&next.view([-1, 1])), &mut cache);
                     all.push(std::mem::replace(&mut logits, following));
                 } else {
                     all.push(logits.shallow_clone());
                 }
+                next_tokens.push(next);
             }
+            // `[action_dim, B]` on the host, one read-back
+            let steps = Tensor::stack(&next_tokens, 0).to_device(Device::Cpu);
+            let tokens: Vec<Vec<i64>> = (0..stats.dim() as i64)
+                .map(|s| Vec::<i64>::try_from(&steps.get(s)).expect("argmax is int64"))
+                .collect();
             // `[B, action_dim, vocab]`
             (tokens, Tensor::stack(&all, 1))
         });

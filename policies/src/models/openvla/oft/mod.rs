@@ -317,7 +317,9 @@ impl OftModel {
     pub fn load_on(dir: &Path, device: Device, kind: Kind) -> Result<Self, OpenVlaError> {
         let files = OftFiles::find(dir)?;
         let proprio_stats = proprio_stats(dir)?;
-        let base = OpenVlaModel::load_on(dir, device, kind)?;
+        let mut base = OpenVlaModel::load_on(dir, device, kind)?;
+        // openvla-oft's get_vla loads transformers' SDPA attention (its fork makes it bidirectional)
+        base.set_attention(super::Attention::Sdpa);
         let hidden = base.config.text.hidden_size;
         let head = ActionHead::load(&mut Component::load(&files.action_head, device, kind)?, hidden)?;
         let proprio = ProprioProjector::load(&mut Component::load(&files.proprio_projector, device, kind)?, hidden)?;
@@ -326,6 +328,15 @@ impl OftModel {
 
     pub fn config(&self) -> &super::OpenVlaConfig {
         self.base.config()
+    }
+
+    /// The attention implementation (SDPA, as OFT loads it; eager for comparisons).
+    pub fn set_attention(&mut self, attention: super::Attention) {
+        self.base.set_attention(attention);
+    }
+
+    pub fn attention(&self) -> super::Attention {
+        self.base.attention()
     }
 
     pub fn files(&self) -> &OftFiles {

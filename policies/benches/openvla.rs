@@ -1,9 +1,12 @@
-//! OpenVLA's per-action latency and batched throughput, in process on libtorch.
+//! OpenVLA's (or OpenVLA-OFT's) per-query latency and batched throughput, in process on libtorch.
 //!
 //! ```text
-//! cargo bench -p libero-policies --bench openvla -- --checkpoint DIR [--batch 1,8,32] [--iters 10]
-//!     [--warmup 2] [--device cuda|cpu] [--json OUT.json]
+//! cargo bench -p libero-policies --bench openvla -- --checkpoint DIR [--oft] [--batch 1,8,32]
+//!     [--iters 10] [--warmup 2] [--device cuda|cpu] [--attention eager|sdpa] [--json OUT.json]
 //! ```
+//!
+//! `--attention` overrides the model's attention implementation (OpenVLA: eager, as its parity
+//! reference; OFT: SDPA, as openvla-oft loads it), to time the other one.
 //!
 //! One timed call is [`OpenVlaModel::predict_actions`] on B (image, instruction) pairs: the fused
 //! vision tower on B images, the prefill of B left-padded prompts (LIBERO instructions of different
@@ -13,8 +16,15 @@
 //! checkpoint's: the full-size run uses a random-weight bf16 checkpoint of the 7B architecture
 //! written by `scripts/reference/openvla_bench.py`, which also times the Python reference's forward.
 //! Without `--checkpoint` (as under a plain `cargo bench`) it says what it needs and exits.
+//!
+//! With `--oft` the checkpoint is an OpenVLA-OFT one and a timed call is
+//! [`OftModel::predict_chunks`] on B queries (two random images, a state and an instruction each):
+//! the vision tower on 2B images, the proprio projector, one bidirectional forward of B left-padded
+//! sequences and the L1 head, the 8 × 7 chunks read back. The full-size checkpoint is written by
+//! `scripts/reference/oft_bench.py`, which times the Python forward the same way.
 
-use libero_policies::models::openvla::OpenVlaModel;
+use libero_policies::models::openvla::oft::{OftModel, OftQuery, PROPRIO_DIM};
+use libero_policies::models::openvla::{Attention, OpenVlaModel};
 use libero_policies::preprocess::RgbImage;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -30,6 +40,8 @@ const INSTRUCTIONS: [&str; 4] = [
 
 struct Args {
     checkpoint: Option<PathBuf>,
+    oft: bool,
+    attention: Option<Attention>,
     batches: Vec<usize>,
     iters: usize,
     warmup: usize,
@@ -40,6 +52,8 @@ struct Args {
 fn parse_args() -> Result<Args, String> {
     let mut a = Args {
         checkpoint: std::env::var_os("LIBERO_OPENVLA_BENCH_CHECKPOINT").map(PathBuf::from),
+        oft: false,
+        attention: None,
         batches: vec![1, 8, 32],
         iters: 10,
         warmup: 2,
@@ -51,6 +65,14 @@ fn parse_args() -> Result<Args, String> {
         let mut value = || it.next().ok_or_else(|| format!("{flag} needs a value"));
         match flag.as_str() {
             "--checkpoint" => a.checkpoint = Some(value()?.into()),
+            "--oft" => a.oft = true,
+            "--attention" => {
+                a.attention = Some(match value()?.as_str() {
+                    "eager" => Attention::Eager,
+                    "sdpa" => Attention::Sdpa,
+                    other => return Err(format!("--attention: {other:?} is not eager or sdpa")),
+                })
+            }
             "--batch" => {
                 a.batches = value()?
                     .split(',')
@@ -77,6 +99,67 @@ fn parse_args() -> Result<Args, String> {
     Ok(a)
 }
 
+/// A `[H, W, 3]` uint8 `.npy` image.
+fn npy_image(path: &std::path::Path) -> RgbImage {
+    let image = tch::Tensor::read_npy(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let size = image.size();
+    let rgb: Vec<u8> = Vec::try_from(image.flatten(0, -1)).expect("uint8 image");
+    RgbImage::new(size[1] as u32, size[0] as u32, rgb).expect("image")
+}
+
+/// `n` square images of random bytes (the arithmetic does not depend on pixel values).
+fn random_images(n: usize, size: u32, seed: u64) -> Vec<RgbImage> {
+    let mut seed = 0x9e3779b97f4a7c15u64 ^ seed;
+    (0..n)
+        .map(|_| {
+            let rgb = (0..size * size * 3)
+                .map(|_| {
+                    seed ^= seed << 13;
+                    seed ^= seed >> 7;
+                    seed ^= seed << 17;
+                    (seed >> 56) as u8
+                })
+                .collect();
+            RgbImage::new(size, size, rgb).expect("image")
+        })
+        .collect()
+}
+
+/// Where the OFT checkpoint comes with the Python reference's B = 1 prediction (oft_bench.py's
+/// `reference/`: primary.npy, wrist.npy, state.npy, normalized.npy, expected.json): the same
+/// query here, the normalised chunks compared.
+fn compare_oft_with_reference(model: &OftModel, dir: &std::path::Path, unnorm: Option<&str>) -> serde_json::Value {
+    let reference = dir.join("reference");
+    let Ok(text) = std::fs::read_to_string(reference.join("expected.json")) else {
+        return serde_json::Value::Null;
+    };
+    let expected: serde_json::Value = serde_json::from_str(&text).expect("expected.json");
+    let (primary, wrist) = (npy_image(&reference.join("primary.npy")), npy_image(&reference.join("wrist.npy")));
+    let state: Vec<f64> =
+        Vec::try_from(tch::Tensor::read_npy(reference.join("state.npy")).expect("state.npy")).expect("f64 state");
+    let state: [f64; PROPRIO_DIM] = state.try_into().expect("an 8-dim state");
+    let instruction = expected["instruction"].as_str().expect("instruction");
+    let query = OftQuery { primary: &primary, wrist: &wrist, state, instruction };
+    let p = model.predict_chunk(&query, unnorm).unwrap_or_else(|e| panic!("{e}"));
+    let ours: Vec<f32> = p.normalized.iter().flatten().copied().collect();
+    // oft_bench.py also writes the chunk under eager attention, for an eager pass here
+    let file = match model.attention() {
+        Attention::Eager if reference.join("normalized_eager.npy").exists() => "normalized_eager.npy",
+        _ => "normalized.npy",
+    };
+    let theirs: Vec<f32> =
+        Vec::try_from(tch::Tensor::read_npy(reference.join(file)).expect(file).flatten(0, -1)).expect("f32 chunk");
+    let max_abs = ours.iter().zip(&theirs).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+    let range = theirs.iter().map(|v| v.abs()).fold(0f32, f32::max);
+    let summary = serde_json::json!({
+        "reference_dtype": expected["dtype"], "reference": file, "attention": format!("{:?}", model.attention()),
+        "chunk_max_abs_diff": max_abs, "chunk_range": range,
+        "rust_first_action": &ours[..7], "python_first_action": &theirs[..7],
+    });
+    println!("  vs the Python reference (B=1, two images, one state): {summary}");
+    summary
+}
+
 /// Where the checkpoint comes with the Python reference's prediction (`reference/expected.json`,
 /// `image.npy`, `step_logits.npy`, as openvla_tiny.py and openvla_bench.py write them): the same
 /// prediction here, tokens and logits compared.
@@ -86,10 +169,7 @@ fn compare_with_reference(model: &OpenVlaModel, dir: &std::path::Path, unnorm: O
         return serde_json::Value::Null;
     };
     let expected: serde_json::Value = serde_json::from_str(&text).expect("expected.json");
-    let image = tch::Tensor::read_npy(reference.join("image.npy")).expect("image.npy");
-    let size = image.size();
-    let rgb: Vec<u8> = Vec::try_from(image.flatten(0, -1)).expect("uint8 image");
-    let image = RgbImage::new(size[1] as u32, size[0] as u32, rgb).expect("image");
+    let image = npy_image(&reference.join("image.npy"));
     let instruction = expected["instruction"].as_str().expect("instruction");
     let p = model.predict_action(&image, instruction, unnorm).unwrap_or_else(|e| panic!("{e}"));
     let tokens: Vec<i64> = expected["tokens"].as_array().expect("tokens").iter().filter_map(|t| t.as_i64()).collect();
@@ -129,60 +209,92 @@ fn main() {
     }
     let kind = if args.device.is_cuda() { Kind::BFloat16 } else { Kind::Float };
     let t0 = Instant::now();
-    let model = OpenVlaModel::load_on(&dir, args.device, kind).unwrap_or_else(|e| panic!("{e}"));
+    let (openvla, oft) = if args.oft {
+        let mut m = OftModel::load_on(&dir, args.device, kind).unwrap_or_else(|e| panic!("{e}"));
+        if let Some(a) = args.attention {
+            m.set_attention(a);
+        }
+        (None, Some(m))
+    } else {
+        let mut m = OpenVlaModel::load_on(&dir, args.device, kind).unwrap_or_else(|e| panic!("{e}"));
+        if let Some(a) = args.attention {
+            m.set_attention(a);
+        }
+        (Some(m), None)
+    };
     let load_s = t0.elapsed().as_secs_f64();
-    let unnorm = model.config().norm_stats.keys().into_iter().next();
-    let size = model.config().backbones[0].image_size as u32;
-    println!("openvla bench: {} on {:?} in {kind:?}; loaded in {load_s:.1} s", dir.display(), args.device);
-    let agreement = compare_with_reference(&model, &dir, unnorm.as_deref());
+    let config = openvla.as_ref().map(|m| m.config()).or(oft.as_ref().map(|m| m.config())).expect("a model");
+    let unnorm = config.norm_stats.keys().into_iter().next();
+    let size = config.backbones[0].image_size as u32;
+    let what = if args.oft { "openvla-oft" } else { "openvla" };
+    let attention = openvla.as_ref().map(|m| m.attention()).or(oft.as_ref().map(|m| m.attention())).expect("a model");
+    println!(
+        "{what} bench: {} on {:?} in {kind:?}, {attention:?} attention; loaded in {load_s:.1} s",
+        dir.display(),
+        args.device
+    );
+    let agreement = match (&openvla, &oft) {
+        (Some(m), _) => compare_with_reference(m, &dir, unnorm.as_deref()),
+        (_, Some(m)) => compare_oft_with_reference(m, &dir, unnorm.as_deref()),
+        _ => unreachable!(),
+    };
+    // what one query returns: an action, or OFT's chunk of 8
+    let actions_per_query = if args.oft { 8 } else { 1 };
     let mut rows = Vec::new();
     for &b in &args.batches {
-        let mut seed = 0x9e3779b97f4a7c15u64 ^ b as u64;
-        let images: Vec<RgbImage> = (0..b)
-            .map(|_| {
-                let rgb = (0..size * size * 3)
-                    .map(|_| {
-                        seed ^= seed << 13;
-                        seed ^= seed >> 7;
-                        seed ^= seed << 17;
-                        (seed >> 56) as u8
+        let images = random_images(2 * b, size, b as u64);
+        let instruction = |i: usize| INSTRUCTIONS[i % INSTRUCTIONS.len()];
+        let call: Box<dyn Fn() -> usize + '_> = match (&openvla, &oft) {
+            (Some(m), _) => {
+                let queries: Vec<(&RgbImage, &str)> = (0..b).map(|i| (&images[i], instruction(i))).collect();
+                let unnorm = unnorm.clone();
+                Box::new(move || m.predict_actions(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}")).len())
+            }
+            (_, Some(m)) => {
+                let queries: Vec<OftQuery> = (0..b)
+                    .map(|i| OftQuery {
+                        primary: &images[2 * i],
+                        wrist: &images[2 * i + 1],
+                        state: std::array::from_fn(|d| 0.01 * (i + d) as f64),
+                        instruction: instruction(i),
                     })
                     .collect();
-                RgbImage::new(size, size, rgb).expect("image")
-            })
-            .collect();
-        let queries: Vec<(&RgbImage, &str)> =
-            images.iter().enumerate().map(|(i, im)| (im, INSTRUCTIONS[i % INSTRUCTIONS.len()])).collect();
+                let unnorm = unnorm.clone();
+                Box::new(move || m.predict_chunks(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}")).len())
+            }
+            _ => unreachable!(),
+        };
         let mut times = Vec::new();
         for i in 0..args.warmup + args.iters {
             let t = Instant::now();
-            let p = model.predict_actions(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}"));
+            let answered = call();
             let s = t.elapsed().as_secs_f64();
-            assert_eq!(p.len(), b);
+            assert_eq!(answered, b);
             if i >= args.warmup {
                 times.push(s);
             }
         }
         times.sort_by(f64::total_cmp);
         let median = percentile(&times, 0.5);
+        let actions = (b * actions_per_query) as f64;
         let row = serde_json::json!({
             "batch": b, "iters": times.len(),
             "call_ms_median": median * 1e3, "call_ms_p90": percentile(&times, 0.9) * 1e3,
             "call_ms_min": times[0] * 1e3,
-            "ms_per_action": median * 1e3 / b as f64, "actions_per_s": b as f64 / median,
+            "ms_per_query": median * 1e3 / b as f64, "actions_per_s": actions / median,
         });
         println!(
-            "  B={b:>3}: {:>8.1} ms per call (p90 {:.1}), {:>7.2} ms per action, {:>7.1} actions/s",
+            "  B={b:>3}: {:>8.1} ms per call (p90 {:.1}), {:>7.2} ms per query, {:>7.1} actions/s ({actions_per_query} per query)",
             median * 1e3,
             percentile(&times, 0.9) * 1e3,
             median * 1e3 / b as f64,
-            b as f64 / median
+            actions / median
         );
         rows.push(row);
     }
     if let Some(out) = &args.json {
         let report = serde_json::json!({
-            "implementation": "rust (tch, libtorch)", "checkpoint": dir.display().to_string(),
+            "implementation": "rust (tch, libtorch)", "model": what, "attention": format!("{attention:?}"), "checkpoint": dir.display().to_string(),
             "device": format!("{:?}", args.device), "dtype": format!("{kind:?}"), "load_s": load_s,
             "reference_agreement": agreement, "results": rows,
         });

@@ -187,6 +187,99 @@ fn compare_with_reference(model: &OpenVlaModel, dir: &std::path::Path, unnorm: O
     summary
 }
 
+/// H100 SXM's dense bf16 tensor-core rate as measured on the device machine (issue 22's yardstick).
+const PEAK_TFLOPS: f64 = 790.0;
+
+/// Parameters under each name prefix of the checkpoint's safetensors shards (from their headers:
+/// an 8-byte little-endian length, then JSON `{name: {dtype, shape, data_offsets}}`).
+fn parameters_by_prefix(dir: &std::path::Path, prefixes: &[&str]) -> Vec<f64> {
+    let mut counts = vec![0f64; prefixes.len()];
+    let mut shards: Vec<_> = std::fs::read_dir(dir)
+        .expect("checkpoint dir")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "safetensors"))
+        .collect();
+    shards.sort();
+    for shard in shards {
+        use std::io::Read;
+        let mut f = std::fs::File::open(&shard).expect("shard");
+        let mut len = [0u8; 8];
+        f.read_exact(&mut len).expect("safetensors header length");
+        let mut header = vec![0u8; u64::from_le_bytes(len) as usize];
+        f.read_exact(&mut header).expect("safetensors header");
+        let header: serde_json::Value = serde_json::from_slice(&header).expect("safetensors header json");
+        for (name, t) in header.as_object().expect("header object") {
+            let Some(shape) = t.get("shape").and_then(|s| s.as_array()) else { continue };
+            let n: f64 = shape.iter().filter_map(|d| d.as_f64()).product();
+            if let Some(i) = prefixes.iter().position(|p| name.starts_with(p)) {
+                counts[i] += n;
+            }
+        }
+    }
+    counts
+}
+
+/// The floating-point operations one call executes (2 per multiply-add), padding included, from
+/// the checkpoint's sizes: the vision towers and projector as 2 × parameters × patches per image
+/// (their attention, under 4%, left out); per Llama layer its weights, 2 × parameters per
+/// position, plus attention, 4 × hidden × keys per query position; OpenVLA: a prefill of the
+/// padded prompts, logits at the last position, then `action_dim − 1` decode steps, each a
+/// position per row with logits; OFT: one forward of the padded sequences and the L1 head on 8
+/// readouts per row (no logits).
+struct FlopModel {
+    vision: f64,
+    projector: f64,
+    layer: f64,
+    layers: f64,
+    hidden: f64,
+    vocab: f64,
+    patches: f64,
+}
+
+impl FlopModel {
+    fn new(dir: &std::path::Path, config: &libero_policies::models::openvla::OpenVlaConfig) -> Self {
+        let c = &config.text;
+        let (d, kv) = (c.hidden_size as f64, (c.hidden_size / c.num_attention_heads * c.num_key_value_heads) as f64);
+        let p = parameters_by_prefix(dir, &["vision_backbone.", "projector."]);
+        let side = (config.backbones[0].image_size / 14) as f64;
+        FlopModel {
+            vision: p[0],
+            projector: p[1],
+            layer: 2.0 * d * d + 2.0 * d * kv + 3.0 * d * c.intermediate_size as f64,
+            layers: c.num_hidden_layers as f64,
+            hidden: d,
+            vocab: c.vocab_size as f64,
+            patches: side * side,
+        }
+    }
+
+    fn images(&self, n: f64) -> f64 {
+        2.0 * n * (self.vision + self.projector) * self.patches
+    }
+
+    /// `queries` positions attending to `keys` positions each, per row.
+    fn llm(&self, rows: f64, queries: f64, keys: f64) -> f64 {
+        rows * self.layers * queries * (2.0 * self.layer + 4.0 * self.hidden * keys)
+    }
+
+    fn openvla(&self, prompt_lens: &[usize], action_dim: usize) -> f64 {
+        let b = prompt_lens.len() as f64;
+        let t0 = self.patches + *prompt_lens.iter().max().unwrap_or(&0) as f64;
+        let logits = 2.0 * b * self.hidden * self.vocab;
+        let decode: f64 = (1..action_dim).map(|k| self.llm(b, 1.0, t0 + k as f64) + logits).sum();
+        self.images(b) + self.llm(b, t0, t0) + logits + decode
+    }
+
+    fn oft(&self, prompt_lens: &[usize]) -> f64 {
+        let b = prompt_lens.len() as f64;
+        // <s>, 2 images' patches, proprio, the rest of the prompt, 56 placeholders, </s>
+        let t = 2.0 * self.patches + 1.0 + *prompt_lens.iter().max().unwrap_or(&0) as f64 + 56.0 + 1.0;
+        let d = self.hidden;
+        let head = 2.0 * b * 8.0 * (7.0 * d * d + 2.0 * d * d);
+        self.images(2.0 * b) + self.llm(b, t, t) + head
+    }
+}
+
 fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
@@ -240,6 +333,12 @@ fn main() {
     };
     // what one query returns: an action, or OFT's chunk of 8
     let actions_per_query = if args.oft { 8 } else { 1 };
+    let flop_model = FlopModel::new(&dir, config);
+    let input_ids = |i: usize| match (&openvla, &oft) {
+        (Some(m), _) => m.input_ids(INSTRUCTIONS[i % INSTRUCTIONS.len()]).expect("prompt").len(),
+        (_, Some(m)) => m.input_ids(INSTRUCTIONS[i % INSTRUCTIONS.len()]).expect("prompt").len(),
+        _ => unreachable!(),
+    };
     let mut rows = Vec::new();
     for &b in &args.batches {
         let images = random_images(2 * b, size, b as u64);
@@ -277,18 +376,25 @@ fn main() {
         times.sort_by(f64::total_cmp);
         let median = percentile(&times, 0.5);
         let actions = (b * actions_per_query) as f64;
+        let prompt_lens: Vec<usize> = (0..b).map(input_ids).collect();
+        let flops = if args.oft { flop_model.oft(&prompt_lens) } else { flop_model.openvla(&prompt_lens, 7) };
+        let tflops = flops / median / 1e12;
         let row = serde_json::json!({
             "batch": b, "iters": times.len(),
             "call_ms_median": median * 1e3, "call_ms_p90": percentile(&times, 0.9) * 1e3,
             "call_ms_min": times[0] * 1e3,
             "ms_per_query": median * 1e3 / b as f64, "actions_per_s": actions / median,
+            "tflop_per_call": flops / 1e12, "tflop_per_s": tflops, "fraction_of_peak": tflops / PEAK_TFLOPS,
         });
         println!(
-            "  B={b:>3}: {:>8.1} ms per call (p90 {:.1}), {:>7.2} ms per query, {:>7.1} actions/s ({actions_per_query} per query)",
+            "  B={b:>3}: {:>8.1} ms per call (p90 {:.1}), {:>7.2} ms per query, {:>7.1} actions/s ({actions_per_query} per \
+             query); {:.1} GFLOP per call, {tflops:.1} TFLOP/s = {:.1}% of {PEAK_TFLOPS}",
             median * 1e3,
             percentile(&times, 0.9) * 1e3,
             median * 1e3 / b as f64,
-            actions / median
+            actions / median,
+            flops / 1e9,
+            100.0 * tflops / PEAK_TFLOPS
         );
         rows.push(row);
     }

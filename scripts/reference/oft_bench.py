@@ -22,7 +22,6 @@ to the host. transformers 4.40.1's LlamaForCausalLM with SDPA, torch.no_grad, CU
 around each call.
 """
 
-import argparse
 import collections
 import json
 import os
@@ -122,18 +121,9 @@ def build(out_dir):
 
 
 def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("out_dir")
-    ap.add_argument("--batch", default="1,8,32")
-    ap.add_argument("--iters", type=int, default=10)
-    ap.add_argument("--warmup", type=int, default=2)
-    ap.add_argument("--json")
-    args = ap.parse_args()
-    assert torch.cuda.is_available(), "the 7B bench runs on a CUDA GPU"
-    out_dir, ref_dir = args.out_dir, os.path.join(args.out_dir, "reference")
-    os.makedirs(ref_dir, exist_ok=True)
+    args, ref_dir = ovb.bench_args()
     t0 = time.perf_counter()
-    model, proprio_projector, action_head, tokenizer, stats, n_params = build(out_dir)
+    model, proprio_projector, action_head, tokenizer, stats, n_params = build(args.out_dir)
     build_s = time.perf_counter() - t0
 
     # the B = 1 reference: two images, a LIBERO-like state, the instruction
@@ -157,22 +147,9 @@ def main():
         images = [tuple(rng.randint(0, 256, (224, 224, 3)).astype(np.uint8) for _ in range(2)) for _ in range(b)]
         states = [state + rng.uniform(-0.05, 0.05, state.shape) for _ in range(b)]
         instructions = [ovb.INSTRUCTIONS[i % len(ovb.INSTRUCTIONS)] for i in range(b)]
-        times = []
-        for i in range(args.warmup + args.iters):
-            torch.cuda.synchronize()
-            t = time.perf_counter()
-            predict_batch(model, proprio_projector, action_head, tokenizer, images, states, instructions, stats)
-            torch.cuda.synchronize()
-            if i >= args.warmup:
-                times.append(time.perf_counter() - t)
-        times.sort()
-        med, p90 = times[len(times) // 2], times[round((len(times) - 1) * 0.9)]
-        actions = b * oft.NUM_ACTIONS_CHUNK
-        row = {"batch": b, "iters": len(times), "call_ms_median": med * 1e3, "call_ms_p90": p90 * 1e3,
-               "call_ms_min": times[0] * 1e3, "ms_per_query": med * 1e3 / b,
-               "actions_per_s": actions / med}
-        print(f"  B={b:>3}: {med * 1e3:>8.1f} ms per call (p90 {p90 * 1e3:.1f}), {med * 1e3 / b:>7.2f} ms per query, "
-              f"{actions / med:>7.1f} actions/s (8 per chunk)", flush=True)
+        row = ovb.timed_row(
+            lambda: predict_batch(model, proprio_projector, action_head, tokenizer, images, states, instructions, stats),
+            b, args, unit="query", actions_per_query=oft.NUM_ACTIONS_CHUNK)
         rows.append(row)
     # the B = 1 reference again with eager attention: the Rust side's eager pass must match it bit for
     # bit (the same kernels), which checks everything apart from the attention kernel

@@ -80,7 +80,8 @@ def predict_batch(model, tokenizer, pixel_values, instructions):
     return tokens
 
 
-def main():
+def bench_args():
+    """The command line of the 7B benches (this one and oft_bench.py); the reference folder made."""
     ap = argparse.ArgumentParser()
     ap.add_argument("out_dir")
     ap.add_argument("--batch", default="1,8,32")
@@ -89,8 +90,35 @@ def main():
     ap.add_argument("--json")
     args = ap.parse_args()
     assert torch.cuda.is_available(), "the 7B bench runs on a CUDA GPU"
-    out_dir, ref_dir = args.out_dir, os.path.join(args.out_dir, "reference")
+    ref_dir = os.path.join(args.out_dir, "reference")
     os.makedirs(ref_dir, exist_ok=True)
+    return args, ref_dir
+
+
+def timed_row(call, b, args, unit="action", actions_per_query=1):
+    """`call()` on B queries, timed args.iters times after args.warmup, CUDA synchronised around
+    each: the result row (median, p90, min; per query; actions/s), printed."""
+    times = []
+    for i in range(args.warmup + args.iters):
+        torch.cuda.synchronize()
+        t = time.perf_counter()
+        call()
+        torch.cuda.synchronize()
+        if i >= args.warmup:
+            times.append(time.perf_counter() - t)
+    times.sort()
+    med, p90 = times[len(times) // 2], times[round((len(times) - 1) * 0.9)]
+    actions = b * actions_per_query
+    chunk = f" ({actions_per_query} per {unit})" if actions_per_query > 1 else ""
+    print(f"  B={b:>3}: {med * 1e3:>8.1f} ms per call (p90 {p90 * 1e3:.1f}), {med * 1e3 / b:>7.2f} ms per {unit}, "
+          f"{actions / med:>7.1f} actions/s{chunk}", flush=True)
+    return {"batch": b, "iters": len(times), "call_ms_median": med * 1e3, "call_ms_p90": p90 * 1e3,
+            "call_ms_min": times[0] * 1e3, f"ms_per_{unit}": med * 1e3 / b, "actions_per_s": actions / med}
+
+
+def main():
+    args, ref_dir = bench_args()
+    out_dir = args.out_dir
     t0 = time.perf_counter()
     torch.manual_seed(0)
     tokenizer = tiny.build_tokenizer(out_dir)
@@ -116,21 +144,9 @@ def main():
         rng = np.random.RandomState(b)
         images = [rng.randint(0, 256, (224, 224, 3)).astype(np.uint8) for _ in range(b)]
         instructions = [INSTRUCTIONS[i % len(INSTRUCTIONS)] for i in range(b)]
-        times = []
-        for i in range(args.warmup + args.iters):
-            torch.cuda.synchronize()
-            t = time.perf_counter()
-            pv = torch.cat([tiny.pixel_values_of(im) for im in images]).to("cuda", torch.bfloat16)
-            predict_batch(model, tokenizer, pv, instructions)
-            torch.cuda.synchronize()
-            if i >= args.warmup:
-                times.append(time.perf_counter() - t)
-        times.sort()
-        med, p90 = times[len(times) // 2], times[round((len(times) - 1) * 0.9)]
-        row = {"batch": b, "iters": len(times), "call_ms_median": med * 1e3, "call_ms_p90": p90 * 1e3,
-               "call_ms_min": times[0] * 1e3, "ms_per_action": med * 1e3 / b, "actions_per_s": b / med}
-        print(f"  B={b:>3}: {med * 1e3:>8.1f} ms per call (p90 {p90 * 1e3:.1f}), {med * 1e3 / b:>7.2f} ms per action, "
-              f"{b / med:>7.1f} actions/s", flush=True)
+        row = timed_row(lambda: predict_batch(
+            model, tokenizer, torch.cat([tiny.pixel_values_of(im) for im in images]).to("cuda", torch.bfloat16),
+            instructions), b, args)
         rows.append(row)
     report = {"implementation": "python (transformers LlamaForCausalLM eager + timm)",
               "versions": {"torch": torch.__version__, "transformers": sys.modules["transformers"].__version__,

@@ -5,7 +5,7 @@
 //! only when the chunk is spent), the gripper mapped; a wrong `unnorm` key, a missing head file or a
 //! directory that is no checkpoint stops the run before any episode.
 
-use libero_e2e::{ok, pipeline, repo_root, run_policy_steps, sql_rows, test_dir};
+use libero_e2e::{ok, pipeline, repo_root, single_and_batched_steps, sql_rows, test_dir};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -76,27 +76,9 @@ fn an_oft_checkpoint_runs_through_the_pipeline() {
 fn batched_oft_forwards_give_each_episode_its_unbatched_actions() {
     let d = test_dir("oft", "batch");
     let ckpt = tiny_checkpoint(&d);
-    let specs = d.join("specs.parquet");
-    let s = specs.to_str().unwrap();
-    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
-    let actions = |name: &str, options: &str| -> Vec<Vec<String>> {
-        let policy = format!("oft:{}?unnorm=libero_spatial_no_noops{options}", ckpt.display());
-        let extra = ["--max-steps", "9", "--jobs", "4"];
-        let (stderr, rows) =
-            run_policy_steps(&specs, &d.join(name), &policy, &extra, "episode_key, policy_step, action");
-        if !options.is_empty() {
-            let line =
-                stderr.lines().find(|l| l.starts_with("batched policy oft:")).unwrap_or_else(|| panic!("{stderr}"));
-            let most: usize = line.rsplit("at most ").next().unwrap().trim().parse().unwrap();
-            assert!(most > 1, "no forward held more than one episode: {line}");
-            eprintln!("{line}");
-        }
-        rows
-    };
-    let single = actions("single", "");
-    let batched = actions("batched", "&batch=4&wait_ms=2000");
+    let policy = format!("oft:{}?unnorm=libero_spatial_no_noops", ckpt.display());
+    let (single, batched) = single_and_batched_steps(&d, &policy, 9);
     assert_eq!(single.len(), 4 * 9);
-    assert_eq!(single.len(), batched.len());
     let numbers = |row: &[String]| -> Vec<f64> {
         row[2..].iter().map(|v| v.trim_matches(|c| "\"[] ".contains(c)).parse::<f64>().unwrap()).collect()
     };
@@ -113,6 +95,4 @@ fn batched_oft_forwards_give_each_episode_its_unbatched_actions() {
     eprintln!("batched vs one episode per forward: max |Δ action| first chunk {first:.2e}, second {later:.2e}");
     assert!(first <= 1e-5, "batched actions of the first chunk differ by {first}");
     assert!(later <= 1e-2, "batched actions of the second chunk differ by {later}");
-    let identity = sql_rows(&d.join("batched"), "SELECT policy_identity FROM manifest", &[]).concat().join(",");
-    assert!(identity.contains("max_episodes_per_forward"), "{identity}");
 }

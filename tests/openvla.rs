@@ -5,7 +5,7 @@
 //! step, the action is un-normalised with the named statistics and the gripper mapped; a wrong
 //! `unnorm` key stops the run before any episode, naming the keys the checkpoint has.
 
-use libero_e2e::{ok, pipeline, repo_root, run_policy_steps, sql_rows, test_dir};
+use libero_e2e::{ok, pipeline, repo_root, single_and_batched_steps, sql_rows, test_dir};
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -51,40 +51,18 @@ fn an_openvla_checkpoint_runs_through_the_pipeline() {
 }
 
 /// `&batch=4` with 4 workers: the episodes' queries share forwards (prompts of different lengths,
-/// left-padded), and each episode's actions equal those of one episode per forward. The forwards
-/// wait up to 2 s for each other (`wait_ms`): with the default 20 ms, the episodes on a loaded
-/// 2-core CI box drifted apart and every forward held one (CI, session 8). (On a CPU, as
-/// in CI: f32. In bf16 on a GPU a near tie between two action tokens could decode differently.)
+/// left-padded), and each episode's actions equal those of one episode per forward
+/// ([`single_and_batched_steps`]). (On a CPU, as in CI: f32. In bf16 on a GPU a near tie between
+/// two action tokens could decode differently.)
 #[test]
 fn batched_openvla_forwards_give_each_episode_its_unbatched_actions() {
     let d = test_dir("openvla", "batch");
     let ckpt = tiny_checkpoint(&d);
-    let specs = d.join("specs.parquet");
-    let s = specs.to_str().unwrap();
-    // tasks 0 and 1 of libero_spatial: instructions of different lengths
-    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
-    let actions = |name: &str, options: &str| -> Vec<Vec<String>> {
-        let policy = format!("openvla:{}?unnorm=libero_spatial_no_noops{options}", ckpt.display());
-        let extra = ["--max-steps", "3", "--jobs", "4"];
-        let (stderr, rows) =
-            run_policy_steps(&specs, &d.join(name), &policy, &extra, "episode_key, policy_step, action");
-        if !options.is_empty() {
-            // the run reports its forwards; at least one must have held several episodes
-            let line =
-                stderr.lines().find(|l| l.starts_with("batched policy openvla:")).unwrap_or_else(|| panic!("{stderr}"));
-            let most: usize = line.rsplit("at most ").next().unwrap().trim().parse().unwrap();
-            assert!(most > 1, "no forward held more than one episode: {line}");
-            eprintln!("{line}");
-        }
-        rows
-    };
-    let single = actions("single", "");
-    let batched = actions("batched", "&batch=4&wait_ms=2000");
+    let policy = format!("openvla:{}?unnorm=libero_spatial_no_noops", ckpt.display());
+    let (single, batched) = single_and_batched_steps(&d, &policy, 3);
     assert_eq!(single.len(), 4 * 3);
     // `pipeline sql --csv` writes the list column as its text
     assert!(single[0].join(",").contains("\"[") && single[0].len() == 2 + 7, "{:?}", single[0]);
     // decoded bins, un-normalised the same way: equal, not merely close
     assert_eq!(single, batched);
-    let identity = sql_rows(&d.join("batched"), "SELECT policy_identity FROM manifest", &[]).concat().join(",");
-    assert!(identity.contains("max_episodes_per_forward"), "{identity}");
 }

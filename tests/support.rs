@@ -89,6 +89,41 @@ pub fn run_policy_steps(
     (stderr, sql_rows(run, &query, &[]))
 }
 
+/// Tasks 0 and 1 of libero_spatial (instructions of different lengths), 2 trials each, run twice
+/// under `policy` (`<kind>:<dir>?<options>`): one episode per forward, then `&batch=4&wait_ms=2000`,
+/// 4 workers, `max_steps` each. The forwards wait up to 2 s for each other: with the default 20 ms
+/// the episodes on a loaded 2-core CI box drifted apart and every forward held one (CI, session 8).
+/// The batched run must report a forward that held several episodes and store its batch size in
+/// the identity. Returns (single, batched) rows of `episode_key, policy_step, action`.
+pub fn single_and_batched_steps(d: &Path, policy: &str, max_steps: u32) -> (Vec<Vec<String>>, Vec<Vec<String>>) {
+    let specs = d.join("specs.parquet");
+    let s = specs.to_str().unwrap();
+    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
+    let kind = policy.split(':').next().unwrap();
+    let max_steps = max_steps.to_string();
+    let actions = |name: &str, options: &str| -> Vec<Vec<String>> {
+        let policy = format!("{policy}{options}");
+        let extra = ["--max-steps", &max_steps, "--jobs", "4"];
+        let (stderr, rows) =
+            run_policy_steps(&specs, &d.join(name), &policy, &extra, "episode_key, policy_step, action");
+        if !options.is_empty() {
+            // the run reports its forwards; at least one must have held several episodes
+            let prefix = format!("batched policy {kind}:");
+            let line = stderr.lines().find(|l| l.starts_with(&prefix)).unwrap_or_else(|| panic!("{stderr}"));
+            let most: usize = line.rsplit("at most ").next().unwrap().trim().parse().unwrap();
+            assert!(most > 1, "no forward held more than one episode: {line}");
+            eprintln!("{line}");
+        }
+        rows
+    };
+    let single = actions("single", "");
+    let batched = actions("batched", "&batch=4&wait_ms=2000");
+    assert_eq!(single.len(), batched.len());
+    let identity = sql_rows(&d.join("batched"), "SELECT policy_identity FROM manifest", &[]).concat().join(",");
+    assert!(identity.contains("max_episodes_per_forward"), "{identity}");
+    (single, batched)
+}
+
 /// A fresh, empty folder for one test of one test file (`group`), unique to this process.
 pub fn test_dir(group: &str, name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("libero-{group}-{}-{name}", std::process::id()));

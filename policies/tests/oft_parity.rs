@@ -18,41 +18,13 @@ use libero_policies::models::torch_save::read_state_dict;
 use libero_policies::postprocess::Gripper;
 use libero_policies::preprocess::RgbImage;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use tch::{Kind, Tensor};
+use tiny_reference::{max_abs_diff, npy};
 
-fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
-
-fn python() -> PathBuf {
-    let venv =
-        std::env::var_os("LIBERO_OPENVLA_VENV").map(PathBuf::from).unwrap_or_else(|| repo().join(".openvla-venv"));
-    let py = venv.join("bin/python");
-    assert!(py.exists(), "no OpenVLA reference venv at {}: run ./setup.sh", venv.display());
-    py
-}
+mod tiny_reference;
 
 fn build_reference() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("oft-tiny-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let out = Command::new(python()).arg(repo().join("scripts/reference/oft_tiny.py")).arg(&dir).output().unwrap();
-    assert!(
-        out.status.success(),
-        "oft_tiny.py failed:\n{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    dir
-}
-
-fn npy(dir: &Path, name: &str) -> Tensor {
-    Tensor::read_npy(dir.join("reference").join(name)).unwrap_or_else(|e| panic!("{name}: {e}"))
-}
-
-fn max_abs_diff(a: &Tensor, b: &Tensor) -> f64 {
-    assert_eq!(a.size(), b.size(), "shapes differ");
-    (a.to_kind(Kind::Double) - b.to_kind(Kind::Double)).abs().max().double_value(&[])
+    tiny_reference::build("oft_tiny.py")
 }
 
 fn image(dir: &Path, name: &str) -> RgbImage {

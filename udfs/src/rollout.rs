@@ -46,6 +46,11 @@ pub struct RolloutContext {
     /// Runtime for the store's async writes (rayon workers are not runtime threads).
     pub runtime: tokio::runtime::Handle,
     pub progress: ProgressBar,
+    /// Return an episode whose part the store already holds instead of running it again (set by
+    /// distributed runs, whose engine may run a task twice: a retry, a lost executor's tasks).
+    skip_stored_episodes: bool,
+    /// Sleep this long before each episode: only for tests that must kill a worker mid-run.
+    episode_delay: std::time::Duration,
     successes: AtomicU64,
     finished: AtomicU64,
     tasks: TaskCache,
@@ -174,10 +179,26 @@ impl RolloutContext {
             store,
             runtime,
             progress,
+            skip_stored_episodes: false,
+            episode_delay: std::time::Duration::ZERO,
             successes: AtomicU64::new(0),
             finished: AtomicU64::new(0),
             tasks: TaskCache::default(),
         }
+    }
+
+    /// Return the stored outcome of an episode whose part exists instead of running it again, so
+    /// that an engine's re-execution of a task (a retry, a lost executor's tasks) neither repeats
+    /// nor overwrites an episode.
+    pub fn skipping_stored_episodes(mut self) -> Self {
+        self.skip_stored_episodes = true;
+        self
+    }
+
+    /// Sleep before each episode (tests that kill a worker while episodes are in flight).
+    pub fn with_episode_delay(mut self, delay: std::time::Duration) -> Self {
+        self.episode_delay = delay;
+        self
     }
 
     /// How many times a task's model was compiled in this run (about once per task; at most once
@@ -199,8 +220,24 @@ pub fn rollout_result_fields() -> Fields {
 
 #[derive(Debug)]
 pub struct RolloutUdf {
-    ctx: Arc<RolloutContext>,
+    source: RunSource,
     signature: Signature,
+}
+
+/// Finds the run a `rollout` call belongs to from the session configuration it runs under: on a
+/// distributed engine's worker the UDF is registered once per process, before any run exists, and
+/// each task carries its run's settings as configuration keys.
+pub trait RunResolver: Send + Sync + std::fmt::Debug {
+    fn resolve(&self, config: &datafusion::config::ConfigOptions) -> Result<Arc<RolloutContext>>;
+}
+
+/// Where a `rollout` UDF's run comes from.
+#[derive(Debug, Clone)]
+enum RunSource {
+    /// One run, known when the UDF is made (the local engine).
+    Fixed(Arc<RolloutContext>),
+    /// The run named by each call's configuration (a distributed engine's worker or planner).
+    Resolved(Arc<dyn RunResolver>),
 }
 
 impl std::fmt::Debug for RolloutContext {
@@ -211,25 +248,41 @@ impl std::fmt::Debug for RolloutContext {
 
 impl PartialEq for RolloutUdf {
     fn eq(&self, other: &Self) -> bool {
-        Arc::ptr_eq(&self.ctx, &other.ctx)
+        match (&self.source, &other.source) {
+            (RunSource::Fixed(a), RunSource::Fixed(b)) => Arc::ptr_eq(a, b),
+            (RunSource::Resolved(a), RunSource::Resolved(b)) => Arc::ptr_eq(a, b),
+            _ => false,
+        }
     }
 }
 impl Eq for RolloutUdf {}
 impl Hash for RolloutUdf {
     fn hash<H: Hasher>(&self, state: &mut H) {
-        self.ctx.run_config.hash(state);
+        match &self.source {
+            RunSource::Fixed(ctx) => ctx.run_config.hash(state),
+            RunSource::Resolved(_) => "resolved".hash(state),
+        }
     }
 }
 
 impl RolloutUdf {
     pub fn new(ctx: Arc<RolloutContext>) -> Self {
+        Self::with_source(RunSource::Fixed(ctx))
+    }
+
+    fn with_source(source: RunSource) -> Self {
         // Volatile: never constant-folded or de-duplicated; every call runs episodes.
-        RolloutUdf { ctx, signature: Signature::user_defined(Volatility::Volatile) }
+        RolloutUdf { source, signature: Signature::user_defined(Volatility::Volatile) }
     }
 }
 
 pub fn rollout_udf(ctx: Arc<RolloutContext>) -> ScalarUDF {
     ScalarUDF::from(RolloutUdf::new(ctx))
+}
+
+/// A `rollout` whose run each call's configuration names (see [`RunResolver`]).
+pub fn resolved_rollout_udf(resolver: Arc<dyn RunResolver>) -> ScalarUDF {
+    ScalarUDF::from(RolloutUdf::with_source(RunSource::Resolved(resolver)))
 }
 
 impl ScalarUDFImpl for RolloutUdf {
@@ -263,6 +316,11 @@ impl ScalarUDFImpl for RolloutUdf {
         }
     }
     fn invoke_with_args(&self, args: ScalarFunctionArgs) -> Result<ColumnarValue> {
+        let ctx = match &self.source {
+            RunSource::Fixed(ctx) => ctx.clone(),
+            RunSource::Resolved(resolver) => resolver.resolve(&args.config_options)?,
+        };
+        let ctx = ctx.as_ref();
         let arrays = ColumnarValue::values_to_arrays(&args.args)?;
         let suites = arrays[0].as_string::<i32>();
         let tasks = arrays[1].as_primitive::<Int32Type>();
@@ -318,7 +376,7 @@ impl ScalarUDFImpl for RolloutUdf {
                             variant.as_deref(),
                         );
                         let extras = extras.as_ref().map(|x| x.slice(i, 1));
-                        self.run_row(&key, p, extras.as_ref())
+                        run_row(ctx, &key, p, extras.as_ref())
                     })
                     .collect::<Vec<_>>()
                 })
@@ -346,7 +404,7 @@ impl ScalarUDFImpl for RolloutUdf {
 }
 
 /// What `rollout` returns for one row: episode key, success, policy steps, error kind.
-type RowResult = (String, bool, i32, Option<&'static str>);
+type RowResult = (String, bool, i32, Option<String>);
 
 thread_local! {
     /// The worker's env, kept while consecutive episodes are of the same task, with the task's
@@ -361,105 +419,123 @@ pub fn policy_seed(key: &EpisodeKey) -> u64 {
     u64::from_le_bytes(h[..8].try_into().expect("8 bytes"))
 }
 
-impl RolloutUdf {
-    fn run_row(
-        &self,
-        key: &EpisodeKey,
-        perturbation: &EpisodePerturbation,
-        extras: Option<&RecordBatch>,
-    ) -> anyhow::Result<RowResult> {
-        let ctx = &self.ctx;
-        let suite: Suite = key.suite.parse().map_err(anyhow::Error::msg)?;
-        let protocol = ctx.protocol.episode(suite);
-        let run = || -> (arrow::error::Result<RecordBatch>, EpisodeSummary) {
-            WORKER_ENV.with(|cell| {
-                let mut cached = cell.borrow_mut();
-                let task = (suite, key.task_id as u32);
-                if cached.as_ref().is_none_or(|(k, _, _)| *k != task) {
-                    if cached.take().is_some() {
-                        release_freed_memory();
-                    }
-                    let slot = ctx.tasks.get(&ctx.bundles, suite, task.1);
-                    let env = slot.get().expect("filled by get").clone().and_then(|bm| {
-                        let model = bm.1.clone().ok_or_else(|| SimError::Other("mj_copyModel failed".into()))?;
-                        LiberoEnv::with_model(&bm.0, model)
-                    });
-                    match env {
-                        Ok(env) => *cached = Some((task, slot, env)),
-                        Err(e) => {
-                            let instruction = ctx
-                                .bundles
-                                .entry(suite, task.1)
-                                .map(|t| {
-                                    t.instructions.given(protocol.instruction_source, suite.perturbation.is_some())
-                                })
-                                .map(|(text, source)| (text.to_string(), source))
-                                .unwrap_or_default();
-                            let s = EpisodeSummary::failed_to_start(instruction, EpisodeError::from_sim(&e));
-                            return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
-                        }
-                    }
+/// Run one spec row's episode and store its parts (or, when the context skips stored episodes and
+/// its part exists, return what the part holds).
+fn run_row(
+    ctx: &RolloutContext,
+    key: &EpisodeKey,
+    perturbation: &EpisodePerturbation,
+    extras: Option<&RecordBatch>,
+) -> anyhow::Result<RowResult> {
+    let name = key.part_name();
+    if ctx.skip_stored_episodes
+        && let Some(part) = ctx.runtime.block_on(ctx.store.get(&format!("episodes/{name}")))?
+    {
+        ctx.progress.inc(1);
+        return stored_outcome(key, part);
+    }
+    if !ctx.episode_delay.is_zero() {
+        std::thread::sleep(ctx.episode_delay);
+    }
+    let suite: Suite = key.suite.parse().map_err(anyhow::Error::msg)?;
+    let protocol = ctx.protocol.episode(suite);
+    let run = || -> (arrow::error::Result<RecordBatch>, EpisodeSummary) {
+        WORKER_ENV.with(|cell| {
+            let mut cached = cell.borrow_mut();
+            let task = (suite, key.task_id as u32);
+            if cached.as_ref().is_none_or(|(k, _, _)| *k != task) {
+                if cached.take().is_some() {
+                    release_freed_memory();
                 }
-                let env = &mut cached.as_mut().expect("env just cached").2;
-                let mut policy = match ctx.policy.instantiate() {
-                    Ok(p) => p,
+                let slot = ctx.tasks.get(&ctx.bundles, suite, task.1);
+                let env = slot.get().expect("filled by get").clone().and_then(|bm| {
+                    let model = bm.1.clone().ok_or_else(|| SimError::Other("mj_copyModel failed".into()))?;
+                    LiberoEnv::with_model(&bm.0, model)
+                });
+                match env {
+                    Ok(env) => *cached = Some((task, slot, env)),
                     Err(e) => {
-                        let (text, source) = env.bundle().task.instruction(protocol.instruction_source);
-                        let s = EpisodeSummary::failed_to_start(
-                            (text.to_string(), source),
-                            EpisodeError { kind: "policy", message: e.to_string() },
-                        );
+                        let instruction = ctx
+                            .bundles
+                            .entry(suite, task.1)
+                            .map(|t| t.instructions.given(protocol.instruction_source, suite.perturbation.is_some()))
+                            .map(|(text, source)| (text.to_string(), source))
+                            .unwrap_or_default();
+                        let s = EpisodeSummary::failed_to_start(instruction, EpisodeError::from_sim(&e));
                         return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
                     }
-                };
-                let (steps, summary) =
-                    run_episode(env, policy.as_mut(), key, &protocol, perturbation, policy_seed(key));
-                policy.end_episode();
-                (steps.finish(), summary)
-            })
-        };
-        let (steps, summary) = match std::panic::catch_unwind(AssertUnwindSafe(run)) {
-            Ok(r) => r,
-            Err(panic) => {
-                // The cached env may be mid-step; drop it.
-                WORKER_ENV.with(|c| c.borrow_mut().take());
-                let msg = panic
-                    .downcast_ref::<String>()
-                    .cloned()
-                    .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
-                    .unwrap_or_else(|| "panic".into());
-                let s = EpisodeSummary::failed_to_start(
-                    (String::new(), ""),
-                    EpisodeError { kind: "internal", message: msg },
-                );
-                (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s)
+                }
             }
-        };
-        let steps = steps?;
-        let params = perturbation.canonical();
-        let ectx = EpisodeContext {
-            policy: &ctx.policy.name(),
-            perturbation_params: params.as_deref(),
-            run_config: &ctx.run_config,
-            protocol: &protocol,
-        };
-        let episode = episode_batch(key, &summary, &ectx, extras)?;
-        let name = key.part_name();
-        let steps_bytes = parquet_bytes(&steps, Some(&ctx.manifest_json))?;
-        let episode_bytes = parquet_bytes(&episode, Some(&ctx.manifest_json))?;
-        ctx.runtime.block_on(async {
-            ctx.store.put(&format!("steps/{name}"), steps_bytes).await?;
-            ctx.store.put(&format!("episodes/{name}"), episode_bytes).await
-        })?;
-        let finished = ctx.finished.fetch_add(1, Ordering::Relaxed) + 1;
-        let successes = ctx.successes.fetch_add(summary.success() as u64, Ordering::Relaxed) + summary.success() as u64;
-        ctx.progress.set_message(format!("success {successes}/{finished}"));
-        ctx.progress.inc(1);
-        Ok((
-            key.episode_key.clone(),
-            summary.success(),
-            summary.n_policy_steps as i32,
-            summary.error.as_ref().map(|e| e.kind),
-        ))
-    }
+            let env = &mut cached.as_mut().expect("env just cached").2;
+            let mut policy = match ctx.policy.instantiate() {
+                Ok(p) => p,
+                Err(e) => {
+                    let (text, source) = env.bundle().task.instruction(protocol.instruction_source);
+                    let s = EpisodeSummary::failed_to_start(
+                        (text.to_string(), source),
+                        EpisodeError { kind: "policy", message: e.to_string() },
+                    );
+                    return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
+                }
+            };
+            let (steps, summary) = run_episode(env, policy.as_mut(), key, &protocol, perturbation, policy_seed(key));
+            policy.end_episode();
+            (steps.finish(), summary)
+        })
+    };
+    let (steps, summary) = match std::panic::catch_unwind(AssertUnwindSafe(run)) {
+        Ok(r) => r,
+        Err(panic) => {
+            // The cached env may be mid-step; drop it.
+            WORKER_ENV.with(|c| c.borrow_mut().take());
+            let msg = panic
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "panic".into());
+            let s =
+                EpisodeSummary::failed_to_start((String::new(), ""), EpisodeError { kind: "internal", message: msg });
+            (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s)
+        }
+    };
+    let steps = steps?;
+    let params = perturbation.canonical();
+    let ectx = EpisodeContext {
+        policy: &ctx.policy.name(),
+        perturbation_params: params.as_deref(),
+        run_config: &ctx.run_config,
+        protocol: &protocol,
+    };
+    let episode = episode_batch(key, &summary, &ectx, extras)?;
+    let steps_bytes = parquet_bytes(&steps, Some(&ctx.manifest_json))?;
+    let episode_bytes = parquet_bytes(&episode, Some(&ctx.manifest_json))?;
+    ctx.runtime.block_on(async {
+        ctx.store.put(&format!("steps/{name}"), steps_bytes).await?;
+        ctx.store.put(&format!("episodes/{name}"), episode_bytes).await
+    })?;
+    let finished = ctx.finished.fetch_add(1, Ordering::Relaxed) + 1;
+    let successes = ctx.successes.fetch_add(summary.success() as u64, Ordering::Relaxed) + summary.success() as u64;
+    ctx.progress.set_message(format!("success {successes}/{finished}"));
+    ctx.progress.inc(1);
+    Ok((
+        key.episode_key.clone(),
+        summary.success(),
+        summary.n_policy_steps as i32,
+        summary.error.as_ref().map(|e| e.kind.to_string()),
+    ))
+}
+
+/// What `rollout` returns for an episode whose part is stored: read from the part.
+fn stored_outcome(key: &EpisodeKey, part: bytes::Bytes) -> anyhow::Result<RowResult> {
+    use anyhow::Context;
+    let batches: Vec<RecordBatch> = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(part)?
+        .build()?
+        .collect::<std::result::Result<_, _>>()?;
+    let row = batches.iter().find(|b| b.num_rows() > 0).context("an empty episode part")?;
+    let column = |name: &str| row.column_by_name(name).with_context(|| format!("episode part without {name}"));
+    let success = column("success")?.as_boolean().value(0);
+    let steps = column("n_policy_steps")?.as_primitive::<Int32Type>().value(0);
+    let kind = column("error_kind")?;
+    let kind = (!kind.is_null(0)).then(|| kind.as_string::<i32>().value(0).to_string());
+    Ok((key.episode_key.clone(), success, steps, kind))
 }

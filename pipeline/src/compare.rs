@@ -9,7 +9,7 @@
 //! (`n_only_in_a`, `n_only_in_b`), never silently dropped.
 
 use crate::results::write_csv;
-use crate::session::{self, Scoring, SuccessDefinition};
+use crate::session::{self, Scoring};
 use anyhow::{Context, Result};
 use arrow::array::{AsArray, RecordBatch};
 use arrow::datatypes::Int64Type;
@@ -37,7 +37,7 @@ pub fn run(args: Args) -> Result<()> {
         let ctx = SessionContext::new();
         libero_udfs::register_analysis_functions(&ctx);
         for (table, location) in [("scored_a", &args.run_a), ("scored_b", &args.run_b)] {
-            let scored = scored_rows(location, args.scoring.success, args.scoring.cap).await?;
+            let scored = scored_rows(location, &args.scoring).await?;
             ctx.register_table(table, Arc::new(scored))?;
         }
         session::queries::run(&ctx, session::queries::COMPARE_PAIRS).await?;
@@ -77,10 +77,10 @@ pub fn run(args: Args) -> Result<()> {
     })
 }
 
-/// A run's `scored` view (`queries/score.sql`) under the given definition, as an in-memory table.
-async fn scored_rows(location: &str, success: SuccessDefinition, cap: Option<u32>) -> Result<MemTable> {
-    let (run_ctx, _) =
-        session::open(location, success, cap).await.with_context(|| format!("opening run {location}"))?;
+/// A run's `scored` view (`queries/score.sql`) under the given definition, as an in-memory table
+/// (of this process: the paired comparison runs here, whichever engine scored the runs).
+async fn scored_rows(location: &str, scoring: &Scoring) -> Result<MemTable> {
+    let (run_ctx, _) = scoring.open_run(location).await.with_context(|| format!("opening run {location}"))?;
     let scored = run_ctx.table("scored").await?;
     let schema = Arc::new(scored.schema().as_arrow().clone());
     let batches = scored.collect().await.with_context(|| format!("scoring run {location}"))?;

@@ -69,7 +69,7 @@ pub async fn tables(ctx: &datafusion::prelude::SessionContext) -> Result<(Vec<Re
 
 pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
-        let (ctx, _) = session::open(&args.run, args.scoring.success, args.scoring.cap).await?;
+        let (ctx, _) = args.scoring.open_run(&args.run).await?;
         let (plus, pro) = (has_plus_rows(&ctx).await?, has_pro_robustness_rows(&ctx).await?);
         if !plus && !pro {
             bail!(

@@ -9,6 +9,9 @@ mod bench_run;
 mod bundles_location;
 mod compact;
 mod compare;
+#[cfg(feature = "distributed")]
+mod distributed;
+mod engine;
 mod failures;
 mod generalisation;
 mod libero_plus;
@@ -75,6 +78,12 @@ enum Command {
     Video(video::Args),
     /// MP4s of the episodes queries/video_selection.sql picks (first failure, one per failure mode).
     Videos(video::SelectedArgs),
+    /// Ballista scheduler with our functions (for `--engine ballista://HOST:PORT`).
+    #[cfg(feature = "distributed")]
+    Scheduler(distributed::scheduler::Args),
+    /// Ballista executor with our functions: runs episodes of distributed runs with this machine's bundles.
+    #[cfg(feature = "distributed")]
+    Executor(distributed::executor::Args),
     /// Benchmarks that print figures (e.g. `pipeline bench sim`).
     #[command(subcommand)]
     Bench(bench::Bench),
@@ -99,6 +108,10 @@ fn main() -> anyhow::Result<()> {
         Command::Smoke(args) => smoke::run(&bundles()?, args),
         Command::Video(args) => video::run(&bundles()?, args),
         Command::Videos(args) => video::run_selected(&bundles()?, args),
+        #[cfg(feature = "distributed")]
+        Command::Scheduler(args) => distributed::scheduler::run(args),
+        #[cfg(feature = "distributed")]
+        Command::Executor(args) => distributed::executor::run(&bundles()?, args),
         Command::Bench(bench::Bench::Run(args)) => bench_run::run(args),
         Command::Bench(b) => bench::run(&bundles()?, b),
     }

@@ -17,6 +17,7 @@
 use anyhow::{Context, Result};
 use arrow::array::RecordBatch;
 use arrow::datatypes::{DataType, Field, Schema, SchemaRef};
+use datafusion::catalog::view::ViewTable;
 use datafusion::datasource::MemTable;
 use datafusion::prelude::SessionContext;
 use std::sync::Arc;
@@ -56,11 +57,40 @@ pub fn batches() -> Result<Vec<RecordBatch>> {
     reader.collect::<Result<Vec<_>, _>>().context("parsing data/published_libero.csv")
 }
 
-/// Register the table `published` on a session.
+/// Register the table `published` on a session: in memory, or, on a cluster (whose plans cannot
+/// carry in-memory tables), as a view over its rows as literals, the same rows and types.
 pub fn register(ctx: &SessionContext) -> Result<()> {
+    if crate::session::is_distributed(ctx) {
+        ctx.register_table("published", Arc::new(ViewTable::new(values_plan()?, None)))?;
+        return Ok(());
+    }
     let table = MemTable::try_new(schema(), vec![batches()?])?;
     ctx.register_table("published", Arc::new(table))?;
     Ok(())
+}
+
+/// The rows as a `VALUES` plan of typed literals, with the table's column names.
+fn values_plan() -> Result<datafusion::logical_expr::LogicalPlan> {
+    use datafusion::common::ScalarValue;
+    use datafusion::logical_expr::{LogicalPlanBuilder, col, lit};
+    let mut rows = vec![];
+    for batch in batches()? {
+        for r in 0..batch.num_rows() {
+            let row = batch
+                .columns()
+                .iter()
+                .map(|c| Ok(lit(ScalarValue::try_from_array(c, r)?)))
+                .collect::<Result<Vec<_>>>()?;
+            rows.push(row);
+        }
+    }
+    let names = schema()
+        .fields()
+        .iter()
+        .enumerate()
+        .map(|(i, f)| col(format!("column{}", i + 1)).alias(f.name()))
+        .collect::<Vec<_>>();
+    Ok(LogicalPlanBuilder::values(rows)?.project(names)?.build()?)
 }
 
 #[cfg(test)]

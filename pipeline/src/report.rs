@@ -64,11 +64,11 @@ pub struct RunTables {
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     if args.videos {
-        crate::video::render_selection(bundles, &args.runs[0], args.scoring, &args.out.join("failures"))?;
+        crate::video::render_selection(bundles, &args.runs[0], args.scoring.clone(), &args.out.join("failures"))?;
     }
     let runtime = tokio::runtime::Runtime::new()?;
     let tables: Vec<RunTables> =
-        args.runs.iter().map(|location| runtime.block_on(query_run(location, args.scoring))).collect::<Result<_>>()?;
+        args.runs.iter().map(|location| runtime.block_on(query_run(location, &args.scoring))).collect::<Result<_>>()?;
 
     let all =
         |f: fn(&RunTables) -> &Vec<RecordBatch>| tables.iter().flat_map(|t| f(t).iter().cloned()).collect::<Vec<_>>();
@@ -105,8 +105,8 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     Ok(())
 }
 
-async fn query_run(location: &str, scoring: Scoring) -> Result<RunTables> {
-    let (ctx, store) = session::open(location, scoring.success, scoring.cap).await?;
+async fn query_run(location: &str, scoring: &Scoring) -> Result<RunTables> {
+    let (ctx, store) = scoring.open_run(location).await?;
     let manifest = store.read_manifest().await?.context("the run has no manifest")?;
     session::materialize(&ctx, "failure_modes").await.context("queries/failure_modes.sql")?;
     let failure_modes =

@@ -29,7 +29,7 @@ pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
         let (mut suites, mut tasks, mut warnings) = (vec![], vec![], vec![]);
         for location in &args.run {
-            let (ctx, store) = session::open(location, args.scoring.success, args.scoring.cap).await?;
+            let (ctx, store) = args.scoring.open_run(location).await?;
             let manifest = store.read_manifest().await?.context("the run has no manifest")?;
             let run_suites = session::queries::run(&ctx, session::queries::RESULTS).await?;
             tasks.extend(session::queries::run(&ctx, session::queries::RESULTS_BY_TASK).await?);
@@ -48,7 +48,7 @@ pub fn run(args: Args) -> Result<()> {
             warn_on_baseline(policy, run_suites);
         }
         for location in &args.run {
-            let (ctx, _) = session::open(location, args.scoring.success, args.scoring.cap).await?;
+            let (ctx, _) = args.scoring.open_run(location).await?;
             note_perturbed(&ctx).await?;
         }
         Ok(())

@@ -39,7 +39,7 @@ pub async fn has_perturbations(ctx: &datafusion::prelude::SessionContext) -> Res
 
 pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
-        let (ctx, _) = session::open(&args.run, args.scoring.success, args.scoring.cap).await?;
+        let (ctx, _) = args.scoring.open_run(&args.run).await?;
         if !has_perturbations(&ctx).await? {
             bail!(
                 "{} holds no LIBERO-PRO suite; run one beside its base suite (e.g. `pipeline specs --suites libero_goal,libero_goal_swap`; bundles: ./setup.sh --suites libero_goal_swap)",

@@ -5,6 +5,7 @@
 //! so running the same command again on the same `--out` skips them; a different configuration
 //! (policy, caps, wait steps, stop-on-success, bundles, MuJoCo) is refused, never mixed.
 
+use crate::engine::{Engine, EngineArg};
 use crate::session::{self, SuccessDefinition};
 use crate::specs;
 use anyhow::{Context, Result, bail};
@@ -19,7 +20,6 @@ use libero_sim::bundle::BundleSet;
 use libero_udfs::compaction;
 use libero_udfs::rollout::{RolloutContext, RunProtocol, rollout_udf};
 use libero_udfs::run_store::{RunStore, parquet_bytes};
-use libero_udfs::steps_batch::EpisodeKey;
 use sha2::{Digest, Sha256};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -79,9 +79,20 @@ pub struct Args {
     /// Without it such a run is refused, since the perturbation would mean nothing.
     #[arg(long)]
     allow_unseen_perturbations: bool,
+    #[command(flatten)]
+    engine: EngineArg,
+    /// With --engine ballista:// on another machine: the --out folder is one every executor mounts
+    /// at the same path (without it such a run is refused: use an object store).
+    #[arg(long)]
+    shared_filesystem: bool,
+    /// Tests only: every episode sleeps this long first (to kill an executor mid-run).
+    #[arg(long, hide = true, default_value_t = 0)]
+    test_episode_delay_ms: u64,
 }
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
+    // A scheduler that does not answer stops the run before anything is read or written.
+    tokio::runtime::Runtime::new()?.block_on(args.engine.engine.check())?;
     let set = Arc::new(BundleSet::open(bundles)?);
     let specs = specs::load_specs(&args.specs, &set)?;
     if let Some(row) = specs.first_camera_row
@@ -118,7 +129,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         pipeline_version: env!("CARGO_PKG_VERSION").to_string(),
         mujoco_version: libero_sim::mujoco_version(),
         bundle_format_version: libero_schema::bundle_format::BUNDLE_FORMAT_VERSION,
-        bundles_hash: bundles_hash(&set, &specs.keys)?,
+        bundles_hash: bundles_hash(&set, specs.keys.iter().map(|k| (k.suite.as_str(), k.task_id)))?,
         policy: args.policy.name(),
         policy_identity: args.policy.resolve_identity()?,
         num_steps_wait: args.wait_steps as i32,
@@ -133,6 +144,13 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     let runtime = tokio::runtime::Runtime::new()?;
     runtime.block_on(async {
         let store = RunStore::connect(&args.out).await?;
+        if store.url().scheme() == "file" && !args.engine.engine.is_loopback() && !args.shared_filesystem {
+            bail!(
+                "--out {} is a local folder, but the executors of {} may run on other machines and could not write to it. Use an object store (s3://, gs://, az://), or pass --shared-filesystem if every executor mounts this folder at the same path.",
+                store.url(),
+                args.engine.engine
+            );
+        }
         compaction::recover(&store).await?;
         if let Some(c) = compaction::live_lock(&store, "compaction.lock").await? {
             bail!("{} is being compacted by pid {} on {}; run it when that has finished", store.url(), c.pid, c.host);
@@ -281,16 +299,42 @@ async fn run_pending(
         progress.clone(),
     ));
     let n_pending = pending.len();
+    let pending_parts: std::collections::HashSet<String> =
+        pending.iter().map(|&i| specs.keys[i as usize].part_name()).collect();
     let pending_batch = arrow::compute::take_record_batch(&specs.batch, &UInt32Array::from(pending))?;
     let started = (now_rfc3339(), std::time::Instant::now());
-    run_rollouts(ctx.clone(), pending_batch, &specs.extras).await?;
+    let workers = match &args.engine.engine {
+        Engine::Local => {
+            run_rollouts(ctx.clone(), pending_batch, &specs.extras).await?;
+            rayon::current_num_threads()
+        }
+        #[cfg(feature = "distributed")]
+        Engine::Ballista { host, port } => {
+            let run = crate::distributed::client::DistributedRun {
+                host,
+                port: *port,
+                store,
+                manifest_json: serde_json::to_string(&manifest)?,
+                run_config: &manifest.run_config,
+                tasks,
+                pending_parts: pending_parts.clone(),
+                episode_delay_ms: args.test_episode_delay_ms,
+            };
+            let partitions = run.run(&pending_batch, &extras_argument(&specs.extras), &progress).await?;
+            eprintln!("ran on {} in {partitions} partitions", args.engine.engine);
+            0
+        }
+        #[cfg(not(feature = "distributed"))]
+        Engine::Ballista { .. } => unreachable!("Engine::check refuses it"),
+    };
     progress.finish();
     let record = SessionRecord {
         started_at: started.0,
         wall_s: started.1.elapsed().as_secs_f64(),
         episodes: n_pending,
         tasks: tasks.len(),
-        workers: rayon::current_num_threads(),
+        engine: args.engine.engine.to_string(),
+        workers,
         task_compiles: ctx.task_compiles(),
         peak_rss_bytes: peak_rss_bytes(),
         host: compaction::hostname(),
@@ -325,11 +369,19 @@ pub struct SessionRecord {
     pub episodes: usize,
     /// Distinct tasks of the spec table.
     pub tasks: usize,
+    /// Where the episodes ran: `local`, or `ballista://host:port`.
+    #[serde(default = "local_engine")]
+    pub engine: String,
+    /// This process's episode workers (0 when the episodes ran on a cluster's executors).
     pub workers: usize,
     pub task_compiles: u64,
     /// The process's peak resident set (Linux VmHWM), the whole run included.
     pub peak_rss_bytes: Option<u64>,
     pub host: String,
+}
+
+fn local_engine() -> String {
+    "local".into()
 }
 
 /// Peak resident set size of this process so far (Linux `VmHWM`), in bytes.
@@ -347,16 +399,20 @@ async fn run_rollouts(ctx: Arc<RolloutContext>, pending: RecordBatch, extras: &[
     // One partition, one batch: the UDF parallelises the rows itself.
     let table = MemTable::try_new(pending.schema(), vec![vec![pending]])?;
     session.register_table("pending", Arc::new(table))?;
-    let extras_arg = if extras.is_empty() {
-        String::new()
-    } else {
-        let pairs: Vec<String> =
-            extras.iter().map(|c| format!("'{}', \"{}\"", c.replace('\'', "''"), c.replace('"', "\"\""))).collect();
-        format!(", named_struct({})", pairs.join(", "))
-    };
-    let sql = format!("SELECT rollout(suite, task_id, init_state_id, seed{extras_arg}) AS r FROM pending");
+    let sql =
+        format!("SELECT rollout(suite, task_id, init_state_id, seed{}) AS r FROM pending", extras_argument(extras));
     session.sql(&sql).await?.collect().await.context("the rollout query failed")?;
     Ok(())
+}
+
+/// `rollout`'s fifth argument: the spec's other columns as a struct (none: empty).
+fn extras_argument(extras: &[String]) -> String {
+    if extras.is_empty() {
+        return String::new();
+    }
+    let pairs: Vec<String> =
+        extras.iter().map(|c| format!("'{}', \"{}\"", c.replace('\'', "''"), c.replace('"', "\"\""))).collect();
+    format!(", named_struct({})", pairs.join(", "))
 }
 
 async fn write_manifest(store: &RunStore, m: &RunManifest) -> Result<()> {
@@ -409,8 +465,8 @@ async fn print_results(location: &str, policy: &PolicySpec) -> Result<()> {
 /// Build timings and `checks` are left out: they describe a build, they do not change it (a
 /// rebuild or a later `verify_bundles.py` keeps the identity); other tasks built later (e.g.
 /// `--suites libero_90`) do not change a run's identity either.
-fn bundles_hash(set: &BundleSet, keys: &[EpisodeKey]) -> Result<String> {
-    let used: BTreeSet<(&str, i32)> = keys.iter().map(|k| (k.suite.as_str(), k.task_id)).collect();
+pub fn bundles_hash<'a>(set: &BundleSet, tasks: impl IntoIterator<Item = (&'a str, i32)>) -> Result<String> {
+    let used: BTreeSet<(&str, i32)> = tasks.into_iter().collect();
     let mut h = Sha256::new();
     for t in set.tasks().iter().filter(|t| used.contains(&(t.suite.as_str(), t.task_id as i32))) {
         let p = set.root().join(&t.path).join("provenance.json");

@@ -2,6 +2,7 @@
 //! the view `scored` (episode outcomes under a success definition), and our UDFs; plus the table
 //! `published` (the published LIBERO numbers, [`crate::published`]).
 
+use crate::engine::Engine;
 use anyhow::{Context, Result};
 use datafusion::datasource::file_format::parquet::ParquetFormat;
 use datafusion::datasource::listing::{ListingOptions, ListingTable, ListingTableConfig, ListingTableUrl};
@@ -30,8 +31,8 @@ impl SuccessDefinition {
 }
 
 /// How stored steps are scored: the success definition and an optional shorter cap (the
-/// `scored` view; shared by `results`, `sql` and `compare`).
-#[derive(clap::Args, Clone, Copy)]
+/// `scored` view; shared by `results`, `sql` and `compare`), and the engine that runs the queries.
+#[derive(clap::Args, Clone)]
 pub struct Scoring {
     /// Success definition used to score the stored steps (the `scored` view).
     #[arg(long, value_enum, default_value_t = SuccessDefinition::AnyStep)]
@@ -39,9 +40,16 @@ pub struct Scoring {
     /// Score as if episodes were capped at this many policy steps (never longer than they ran).
     #[arg(long)]
     pub cap: Option<u32>,
+    #[command(flatten)]
+    pub engine: crate::engine::EngineArg,
 }
 
 impl Scoring {
+    /// Open a session on the run at `location`, scored this way, on this engine.
+    pub async fn open_run(&self, location: &str) -> Result<(SessionContext, RunStore)> {
+        open_on(&self.engine.engine, location, self.success, self.cap).await
+    }
+
     /// "any-step" or "last-step, cap 40 policy steps": how tables printed under it were scored.
     pub fn describe(&self) -> String {
         format!("{}{}", self.success.sql_name(), self.cap.map_or(String::new(), |c| format!(", cap {c} policy steps")))
@@ -60,7 +68,7 @@ pub struct RunScoring {
 
 impl RunScoring {
     pub async fn open(&self) -> Result<(SessionContext, RunStore)> {
-        open(&self.run, self.scoring.success, self.scoring.cap).await
+        self.scoring.open_run(&self.run).await
     }
 }
 
@@ -193,13 +201,38 @@ pub fn functions_only() -> Result<SessionContext> {
 }
 
 pub async fn open(location: &str, success: SuccessDefinition, cap: Option<u32>) -> Result<(SessionContext, RunStore)> {
+    open_on(&Engine::Local, location, success, cap).await
+}
+
+/// [`open`] on an engine: this process, or a Ballista cluster (whose nodes read the run's files
+/// themselves, so the location must be one they reach).
+pub async fn open_on(
+    engine: &Engine,
+    location: &str,
+    success: SuccessDefinition,
+    cap: Option<u32>,
+) -> Result<(SessionContext, RunStore)> {
     let store = RunStore::connect(location).await?;
     // A compaction killed after its commit is finished first, so no row is seen twice.
     libero_udfs::compaction::recover(&store).await?;
     let Some(manifest) = store.read_manifest().await? else {
         anyhow::bail!("{} holds no run (no manifest.json); start one with `pipeline run`", store.url());
     };
-    let ctx = SessionContext::new_with_config(SessionConfig::new().with_information_schema(true));
+    let ctx = match engine {
+        Engine::Local => SessionContext::new_with_config(SessionConfig::new().with_information_schema(true)),
+        #[cfg(feature = "distributed")]
+        Engine::Ballista { host, port } => {
+            if store.url().scheme() == "memory" {
+                anyhow::bail!("a memory:// run cannot be read by a cluster's executors");
+            }
+            crate::distributed::client::remote_session(host, *port).await?
+        }
+        #[cfg(not(feature = "distributed"))]
+        Engine::Ballista { .. } => {
+            engine.check().await?;
+            unreachable!("Engine::check refuses a Ballista engine in this build")
+        }
+    };
     if store.base_url().scheme() != "file" {
         ctx.register_object_store(store.base_url(), store.object_store());
     }
@@ -276,12 +309,28 @@ pub async fn counts_any(ctx: &SessionContext, count_query: &str) -> Result<bool>
 
 pub async fn materialize(ctx: &SessionContext, view: &str) -> Result<Vec<arrow::record_batch::RecordBatch>> {
     let df = ctx.table(view).await.with_context(|| format!("no view {view}"))?;
+    if is_distributed(ctx) {
+        // A cluster's plans cannot carry in-memory tables: the view stays, and is derived again
+        // by the queries that read it.
+        return df.collect().await.with_context(|| format!("computing {view}"));
+    }
     let schema = Arc::new(df.schema().as_arrow().clone());
     let batches = df.collect().await.with_context(|| format!("computing {view}"))?;
     ctx.deregister_table(view)?;
     let table = datafusion::datasource::MemTable::try_new(schema, vec![batches.clone()])?;
     ctx.register_table(view, Arc::new(table))?;
     Ok(batches)
+}
+
+/// Whether a session runs its queries on a cluster.
+pub fn is_distributed(ctx: &SessionContext) -> bool {
+    #[cfg(feature = "distributed")]
+    return crate::distributed::run_config::is_distributed(ctx);
+    #[cfg(not(feature = "distributed"))]
+    {
+        let _ = ctx;
+        false
+    }
 }
 
 /// What the `scored` view reads.

@@ -28,7 +28,7 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
         let ctx = match &args.run {
-            Some(run) => crate::session::open(run, args.scoring.success, args.scoring.cap).await?.0,
+            Some(run) => args.scoring.open_run(run).await?.0,
             None => crate::session::functions_only()?,
         };
         let batches = ctx.sql(&args.query).await?.collect().await?;

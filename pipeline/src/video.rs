@@ -98,7 +98,7 @@ struct StoredEpisode {
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
     let set = BundleSet::open(bundles)?;
     let episodes = tokio::runtime::Runtime::new()?.block_on(async {
-        let (ctx, store) = session::open(&args.run, args.scoring.success, args.scoring.cap).await?;
+        let (ctx, store) = args.scoring.open_run(&args.run).await?;
         load_episodes(&ctx, store.url().as_str(), &args.episodes).await
     })?;
     render_all(&set, &episodes, &args.render, &args.out)?;
@@ -118,7 +118,8 @@ pub fn run_selected(bundles: &Path, args: SelectedArgs) -> Result<()> {
         println!("{}", arrow::util::pretty::pretty_format_batches(&selection)?);
         return Ok(());
     }
-    let selection = render_selection_with(bundles, &args.scoring.run, args.scoring.scoring, &args.out, &args.render)?;
+    let selection =
+        render_selection_with(bundles, &args.scoring.run, args.scoring.scoring.clone(), &args.out, &args.render)?;
     println!("success definition: {}", args.scoring.scoring.describe());
     println!("{}", arrow::util::pretty::pretty_format_batches(&selection)?);
     println!("wrote {0}/selection.csv and {0}/videos.json", args.out.display());
@@ -143,7 +144,7 @@ fn render_selection_with(
 ) -> Result<Vec<RecordBatch>> {
     let set = BundleSet::open(bundles)?;
     let (selection, episodes, run_config) = tokio::runtime::Runtime::new()?.block_on(async {
-        let (ctx, store) = session::open(run, scoring.success, scoring.cap).await?;
+        let (ctx, store) = scoring.open_run(run).await?;
         let run_config = store.read_manifest().await?.context("the run has no manifest")?.run_config;
         // The selection and the frames read the failure modes: derive them once.
         session::materialize(&ctx, "failure_modes").await.context("queries/failure_modes.sql")?;

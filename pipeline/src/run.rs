@@ -299,6 +299,7 @@ async fn run_pending(
         progress.clone(),
     ));
     let n_pending = pending.len();
+    #[cfg(feature = "distributed")]
     let pending_parts: std::collections::HashSet<String> =
         pending.iter().map(|&i| specs.keys[i as usize].part_name()).collect();
     let pending_batch = arrow::compute::take_record_batch(&specs.batch, &UInt32Array::from(pending))?;

@@ -6,12 +6,14 @@
 -- (prepare_ms: image preprocessing), the wait for the forward to start (queue_ms) and the forward
 -- (forward_ms, shared by the forward's episodes). The model's busy fraction is the time inside distinct
 -- forwards over the span the episodes covered (episodes.started_at .. started_at + wall_s): on a
--- GPU run, an upper bound of the GPU's busy fraction (a forward also holds host work).
+-- GPU run, an upper bound of the GPU's busy fraction (a forward also holds host work); with model
+-- replicas on several GPUs (`devices=`), the sum over the replicas (up to their number).
 --
 -- The projection takes the canonical protocol at its caps (500 episodes per suite; caps 220, 280,
 -- 300, 520 policy steps for libero_spatial, _object, _goal, _10: 660,000 policy steps, what a policy
 -- that never succeeds runs) at this run's policy steps per second, on one machine like this one;
--- the 8-GPU figure assumes 8 such replicas (one model per GPU, 8x the cores), i.e. linear scaling.
+-- the 8-replica figure assumes 8 such machines' worth (8x this run's GPUs and cores), i.e. linear
+-- scaling: from a one-GPU run, 8 GPUs.
 WITH policy_steps AS (
     SELECT * FROM steps WHERE policy_step IS NOT NULL
 ),

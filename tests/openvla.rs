@@ -66,3 +66,51 @@ fn batched_openvla_forwards_give_each_episode_its_unbatched_actions() {
     // decoded bins, un-normalised the same way: equal, not merely close
     assert_eq!(single, batched);
 }
+
+/// `&devices=cpu,cpu`: two replicas of the model, each with its own batcher. The 4 episodes spread
+/// over both (the run reports each replica's forwards), and each episode's actions equal those of
+/// one episode per forward. `&quant=int8` and `&quant=int4`: the weights quantised as they load,
+/// the manifest says how, and `pipeline compare` against the unquantised run reports the first
+/// actions' agreement (policy step 0 sees the same observation in both runs).
+#[test]
+fn replicas_serve_their_own_episodes_and_quantised_weights_run_through_the_pipeline() {
+    let d = test_dir("openvla", "replicas");
+    let ckpt = tiny_checkpoint(&d);
+    let specs = d.join("specs.parquet");
+    let s = specs.to_str().unwrap();
+    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
+    let policy = format!("openvla:{}?unnorm=libero_spatial_no_noops", ckpt.display());
+    let extra = ["--max-steps", "3", "--jobs", "4"];
+    let columns = "episode_key, policy_step, action";
+    let (_, single) = libero_e2e::run_policy_steps(&specs, &d.join("single"), &policy, &extra, columns);
+    let replicated = format!("{policy}&batch=2&wait_ms=2000&devices=cpu,cpu");
+    let (stderr, on_replicas) = libero_e2e::run_policy_steps(&specs, &d.join("replicas"), &replicated, &extra, columns);
+    for replica in ["[replica 1 of 2]", "[replica 2 of 2]"] {
+        let line = stderr.lines().find(|l| l.contains(replica)).unwrap_or_else(|| panic!("no {replica}: {stderr}"));
+        let forwards: usize = line.split(": ").last().unwrap().split(' ').next().unwrap().parse().unwrap();
+        assert!(forwards > 0, "{replica} ran no forward: {line}");
+    }
+    assert_eq!(single, on_replicas, "an episode's actions depend on its replica");
+    let identity = sql_rows(&d.join("replicas"), "SELECT policy_identity FROM manifest", &[]).concat().join(",");
+    assert!(identity.contains("fewest episodes in progress") && identity.matches("Cpu").count() == 2, "{identity}");
+
+    for quant in ["int8", "int4"] {
+        let run = d.join(quant);
+        let (_, steps) =
+            libero_e2e::run_policy_steps(&specs, &run, &format!("{policy}&quant={quant}"), &extra, columns);
+        assert_eq!(steps.len(), single.len());
+        let identity = sql_rows(&run, "SELECT policy_identity FROM manifest", &[]).concat().join(",");
+        assert!(identity.contains(&format!("{quant} weight-only")), "{identity}");
+        let out = d.join(format!("compare-{quant}"));
+        let stdout = ok(pipeline(&[
+            "compare",
+            d.join("single").to_str().unwrap(),
+            run.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]));
+        let line = stdout.lines().find(|l| l.starts_with("first actions")).unwrap_or_else(|| panic!("{stdout}"));
+        assert!(line.contains("of 4 episodes equal in every dimension") && line.contains("of 28 dimensions"), "{line}");
+        eprintln!("{quant}: {line}");
+    }
+}

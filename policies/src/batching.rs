@@ -17,6 +17,11 @@
 //!
 //! With N workers the batch is up to N episodes, and an episode's actions are the same as with a
 //! batch of one (a batch changes the arithmetic only where the model's kernels do).
+//!
+//! Several devices: [`Replicas`] holds one batcher per model replica (one per GPU, say); each
+//! episode is served by one replica from its start to its end, the one with the fewest episodes
+//! in progress when it starts, so the episodes in flight spread evenly whatever the number of
+//! devices, and each replica batches its own share.
 
 use crate::chunking::ActionChunker;
 use crate::{ActTiming, Action, Observation, Policy, PolicyError};
@@ -63,34 +68,105 @@ pub trait BatchModel: Send + 'static {
     }
 }
 
-/// One shared [`Batcher`] per name (e.g. a model file) for the whole process: every rollout
-/// worker's policy instance must reach the same one.
-pub fn shared_batcher<M: BatchModel>(
+/// One shared set of `count` replicas per name (e.g. a model's policy string) for the whole
+/// process: every rollout worker's policy instance must reach the same ones. The first caller
+/// loads them, each in its own thread (`make(i)` for replica i: (model, most episodes per
+/// forward, longest wait)); a replica that fails to load fails them all.
+pub fn shared_replicas<M: BatchModel>(
     name: &str,
-    make: impl FnOnce() -> Result<(M, usize, Duration), PolicyError>,
-) -> Result<Arc<Batcher>, PolicyError> {
-    let mut map = BATCHERS.get_or_init(Default::default).lock().expect("batchers");
-    if let Some(b) = map.get(name) {
-        return Ok(b.clone());
+    count: usize,
+    make: impl Fn(usize) -> Result<(M, usize, Duration), PolicyError> + Sync,
+) -> Result<Arc<Replicas>, PolicyError> {
+    let mut map = REPLICAS.get_or_init(Default::default).lock().expect("replicas");
+    if let Some(r) = map.get(name) {
+        return Ok(r.clone());
     }
-    let (model, max_batch, max_wait) = make()?;
-    let b = Batcher::start(model, max_batch, max_wait);
-    map.insert(name.to_string(), b.clone());
-    Ok(b)
+    let loaded: Vec<Result<(M, usize, Duration), PolicyError>> = std::thread::scope(|scope| {
+        let make = &make;
+        let threads: Vec<_> = (0..count.max(1)).map(|i| scope.spawn(move || make(i))).collect();
+        threads.into_iter().map(|t| t.join().expect("a replica's loading thread panicked")).collect()
+    });
+    let mut batchers = Vec::with_capacity(loaded.len());
+    for replica in loaded {
+        let (model, max_batch, max_wait) = replica?;
+        batchers.push(Batcher::start(model, max_batch, max_wait));
+    }
+    let replicas = Replicas::new(batchers);
+    map.insert(name.to_string(), replicas.clone());
+    Ok(replicas)
 }
 
-static BATCHERS: std::sync::OnceLock<Mutex<std::collections::HashMap<String, Arc<Batcher>>>> =
+static REPLICAS: std::sync::OnceLock<Mutex<std::collections::HashMap<String, Arc<Replicas>>>> =
     std::sync::OnceLock::new();
 
-/// Every shared batcher of this process by name, with the batch sizes it has run (the run prints
-/// them, so a user sees whether the forwards were full).
+/// Every shared batcher of this process by name (`NAME [replica i of n]` where there are
+/// several), with the batch sizes it has run (the run prints them, so a user sees whether the
+/// forwards were full and the replicas shared the work).
 pub fn shared_batcher_stats() -> Vec<(String, BatchStats)> {
-    let Some(map) = BATCHERS.get() else { return Vec::new() };
-    let map = map.lock().expect("batchers");
-    let mut stats: Vec<_> = map.iter().map(|(name, b)| (name.clone(), b.stats())).collect();
+    let Some(map) = REPLICAS.get() else { return Vec::new() };
+    let map = map.lock().expect("replicas");
+    let mut stats = Vec::new();
+    for (name, replicas) in map.iter() {
+        let n = replicas.batchers.len();
+        for (i, b) in replicas.batchers.iter().enumerate() {
+            let label = if n == 1 { name.clone() } else { format!("{name} [replica {} of {n}]", i + 1) };
+            stats.push((label, b.stats()));
+        }
+    }
     stats.sort_by(|a, b| a.0.cmp(&b.0));
     stats
 }
+
+/// A model's replicas, one [`Batcher`] each, and which serves the next episode.
+pub struct Replicas {
+    batchers: Vec<Arc<Batcher>>,
+    /// Held while an episode picks its replica, so that workers starting together spread.
+    choosing: Mutex<()>,
+}
+
+impl Replicas {
+    /// At least one batcher; all of one model (the first one's cameras and chunking stand for all).
+    pub fn new(batchers: Vec<Arc<Batcher>>) -> Arc<Replicas> {
+        assert!(!batchers.is_empty(), "a model needs at least one replica");
+        Arc::new(Replicas { batchers, choosing: Mutex::new(()) })
+    }
+
+    /// One replica.
+    pub fn single(batcher: Arc<Batcher>) -> Arc<Replicas> {
+        Replicas::new(vec![batcher])
+    }
+
+    /// The replica for an episode that starts now, counted in its episodes in progress: the one
+    /// with the fewest (the lowest index among equals).
+    fn start_episode(&self) -> usize {
+        let _choosing = self.choosing.lock().unwrap_or_else(|p| p.into_inner());
+        let (i, b) = self
+            .batchers
+            .iter()
+            .enumerate()
+            .min_by_key(|(i, b)| (b.in_progress.load(Ordering::SeqCst), *i))
+            .expect("at least one replica");
+        b.in_progress.fetch_add(1, Ordering::SeqCst);
+        i
+    }
+
+    fn end_episode(&self, replica: usize) {
+        self.batchers[replica].in_progress.fetch_sub(1, Ordering::SeqCst);
+    }
+
+    /// Each replica's batch sizes, in the replicas' order.
+    pub fn stats(&self) -> Vec<BatchStats> {
+        self.batchers.iter().map(|b| b.stats()).collect()
+    }
+
+    fn first(&self) -> &Batcher {
+        &self.batchers[0]
+    }
+}
+
+/// Forward ids, distinct across every batcher of the process (the replicas of a model too), so that
+/// the stored steps count the forwards of a run ([`ActTiming::forward_id`]).
+static FORWARD_IDS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 type Reply = Sender<(Result<Vec<Action>, String>, ActTiming)>;
 /// A worker's query: the request, when it was sent, where to answer.
@@ -137,7 +213,6 @@ impl Batcher {
         let thread_in_progress = in_progress.clone();
         std::thread::spawn(move || {
             // Ends when every sender (every policy and the batcher itself) is gone.
-            let mut forward_id = 0u64;
             while let Ok(first) = rx.recv() {
                 let mut pending = vec![first];
                 let deadline = std::time::Instant::now() + max_wait;
@@ -174,12 +249,12 @@ impl Batcher {
                 answers.resize_with(replies.len(), || Err("the model returned fewer answers than requests".into()));
                 thread_stats.lock().expect("stats").batches.push(replies.len());
                 let forward_batch = replies.len() as u32;
+                let forward_id = FORWARD_IDS.fetch_add(1, Ordering::SeqCst);
                 for ((sent, reply), answer) in replies.into_iter().zip(answers) {
                     let queue_ms = started.saturating_duration_since(sent).as_secs_f32() * 1e3;
                     let timing = ActTiming { queue_ms, prepare_ms: None, forward_ms, forward_id, forward_batch };
                     let _ = reply.send((answer, timing));
                 }
-                forward_id += 1;
             }
         });
         Arc::new(Batcher {
@@ -219,28 +294,48 @@ impl Batcher {
     }
 }
 
-/// One worker's view of a shared [`Batcher`]: a [`Policy`] that executes `replan_steps` of each
-/// chunk the batch answers.
+/// One worker's view of a model's shared [`Replicas`]: a [`Policy`] that executes `replan_steps`
+/// of each chunk the batch answers, each episode on the replica it started on.
 pub struct BatchedPolicy {
-    batcher: Arc<Batcher>,
+    replicas: Arc<Replicas>,
     chunker: ActionChunker,
     instruction: String,
     name: String,
     last_timing: Option<ActTiming>,
-    /// Counted in the batcher's episodes in progress.
-    in_episode: bool,
+    /// The replica serving the episode in progress, counted in its episodes in progress.
+    replica: Option<usize>,
 }
 
 impl BatchedPolicy {
+    /// On one batcher.
     pub fn new(batcher: Arc<Batcher>, replan_steps: usize, name: &str) -> Self {
+        Self::with_replan(Replicas::single(batcher), replan_steps, name)
+    }
+
+    /// On `replicas`, executing each chunk as far as the model's [`BatchModel::replan_steps`].
+    pub fn on_replicas(replicas: Arc<Replicas>, name: &str) -> Self {
+        let replan = replicas.first().replan_steps();
+        Self::with_replan(replicas, replan, name)
+    }
+
+    fn with_replan(replicas: Arc<Replicas>, replan_steps: usize, name: &str) -> Self {
         BatchedPolicy {
-            batcher,
+            replicas,
             chunker: ActionChunker::new(replan_steps),
             instruction: String::new(),
             name: name.into(),
             last_timing: None,
-            in_episode: false,
+            replica: None,
         }
+    }
+
+    /// The replica serving the episode in progress.
+    pub fn replica(&self) -> Option<usize> {
+        self.replica
+    }
+
+    fn batcher(&self) -> &Batcher {
+        &self.replicas.batchers[self.replica.unwrap_or(0)]
     }
 }
 
@@ -254,32 +349,30 @@ impl Policy for BatchedPolicy {
     fn reset(&mut self, instruction: &str, _episode_seed: u64) {
         self.instruction = instruction.to_string();
         self.chunker.reset();
-        if !self.in_episode {
-            self.in_episode = true;
-            self.batcher.in_progress.fetch_add(1, Ordering::SeqCst);
+        if self.replica.is_none() {
+            self.replica = Some(self.replicas.start_episode());
         }
     }
 
     fn end_episode(&mut self) {
-        if self.in_episode {
-            self.in_episode = false;
-            self.batcher.in_progress.fetch_sub(1, Ordering::SeqCst);
+        if let Some(replica) = self.replica.take() {
+            self.replicas.end_episode(replica);
         }
     }
 
     fn camera_size(&self) -> Option<u32> {
-        self.batcher.camera_size.filter(|_| self.chunker.needs_query())
+        self.replicas.first().camera_size.filter(|_| self.chunker.needs_query())
     }
 
     fn wants_wrist_camera(&self) -> bool {
-        self.batcher.wants_wrist_camera
+        self.replicas.first().wants_wrist_camera
     }
 
     fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
         let err = |detail: String| PolicyError { policy: self.name.clone(), detail };
         self.last_timing = None;
         if self.chunker.needs_query() {
-            let (chunk, timing) = self.batcher.ask(&self.instruction, obs).map_err(err)?;
+            let (chunk, timing) = self.batcher().ask(&self.instruction, obs).map_err(err)?;
             self.last_timing = Some(timing);
             self.chunker.push_chunk(chunk).map_err(err)?;
         }
@@ -354,6 +447,70 @@ mod tests {
         let stats = batcher.stats();
         assert_eq!(stats.batches.iter().sum::<usize>(), 2 * workers, "{stats:?}");
         assert!(stats.batches.iter().any(|&b| b > 1), "no two queries shared a forward: {stats:?}");
+    }
+
+    /// Answers with its own number, so the replica that served a query is visible.
+    struct Numbered(f32);
+    impl BatchModel for Numbered {
+        fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {
+            requests.iter().map(|_| Ok(vec![[self.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]])).collect()
+        }
+    }
+
+    #[test]
+    fn episodes_spread_over_the_replicas_and_stay_on_theirs() {
+        let replicas =
+            shared_replicas("numbered-test", 3, |i| Ok((Numbered(i as f32), 4, Duration::from_millis(1)))).unwrap();
+        // the same name reaches the same replicas, whatever the count asked
+        assert!(Arc::ptr_eq(
+            &replicas,
+            &shared_replicas("numbered-test", 1, |_| Ok((Numbered(9.0), 1, Duration::ZERO))).unwrap()
+        ));
+        let mut workers: Vec<BatchedPolicy> =
+            (0..7).map(|_| BatchedPolicy::on_replicas(replicas.clone(), "numbered")).collect();
+        for w in workers.iter_mut() {
+            w.reset("task", 0);
+        }
+        // 7 episodes over 3 replicas: 3, 2, 2 in the order they started
+        let served: Vec<usize> = workers.iter().map(|w| w.replica().unwrap()).collect();
+        assert_eq!(served, [0, 1, 2, 0, 1, 2, 0]);
+        for (w, &r) in workers.iter_mut().zip(&served) {
+            for _ in 0..3 {
+                assert_eq!(w.act(&Observation::default()).unwrap()[0], r as f32, "an episode stays on its replica");
+            }
+        }
+        // two episodes end on replica 0 and one on 2: the next two start there, the fewest first
+        workers[0].end_episode();
+        workers[3].end_episode();
+        workers[2].end_episode();
+        workers[0].reset("task", 1);
+        workers[2].reset("task", 1);
+        assert_eq!((workers[0].replica(), workers[2].replica()), (Some(0), Some(2)));
+        let stats = replicas.stats();
+        assert_eq!(stats.len(), 3);
+        assert_eq!(stats.iter().map(|s| s.batches.iter().sum::<usize>()).sum::<usize>(), 7 * 3);
+        let labels: Vec<String> =
+            shared_batcher_stats().into_iter().map(|(n, _)| n).filter(|n| n.starts_with("numbered-test")).collect();
+        assert_eq!(
+            labels,
+            ["numbered-test [replica 1 of 3]", "numbered-test [replica 2 of 3]", "numbered-test [replica 3 of 3]"]
+        );
+        for w in workers.iter_mut() {
+            w.end_episode();
+        }
+        assert!(replicas.batchers.iter().all(|b| b.in_progress.load(Ordering::SeqCst) == 0));
+    }
+
+    #[test]
+    fn a_replica_that_fails_to_load_fails_the_model() {
+        let e = shared_replicas("failing-test", 2, |i| match i {
+            1 => Err(PolicyError { policy: "numbered".into(), detail: "cuda:1 is not on this machine".into() }),
+            _ => Ok((Numbered(0.0), 1, Duration::ZERO)),
+        })
+        .err()
+        .expect("an error");
+        assert!(e.to_string().contains("cuda:1"), "{e}");
+        assert!(shared_batcher_stats().iter().all(|(n, _)| !n.starts_with("failing-test")));
     }
 
     /// Panics on the instruction "panic".

@@ -9,7 +9,8 @@
 //! | the seam: [`Policy`], [`Observation`], [`PolicyError`], timing | this file |
 //! | naming a policy (`--policy` strings), its identity, making instances | [`PolicySpec`] (`spec.rs`) |
 //! | the published loops' transforms: images, state, action un-normalisation, gripper | [`preprocess`], [`postprocess`] |
-//! | driving a model: open-loop chunks, one batched forward for many episodes | [`chunking`], [`batching`] |
+//! | driving a model: open-loop chunks, one batched forward for many episodes, replicas on several devices | [`chunking`], [`batching`] |
+//! | where a model runs and how its weights are stored (`devices=`, `quant=`) | [`placement`], `models::quant` |
 //! | in-process model ports on libtorch: TorchScript, OpenVLA, OpenVLA-OFT | `models` (feature `torch`) |
 //! | clients of policy servers: openpi, vla-eval, starVLA | [`remote`] |
 //! | policies without a model: baselines, the privileged scripted [`Expert`] | `baselines.rs`, `expert/`, [`scene`] |
@@ -37,6 +38,7 @@ pub mod chunking;
 mod expert;
 #[cfg(feature = "torch")]
 pub mod models;
+pub mod placement;
 pub mod postprocess;
 pub mod preprocess;
 pub mod remote;
@@ -46,7 +48,7 @@ mod spec;
 pub use baselines::{LiftPolicy, NanAtPolicy, RandomPolicy};
 pub use expert::{Expert, ExpertDrop};
 pub use scene::SceneView;
-pub use spec::PolicySpec;
+pub use spec::{Batching, CheckpointOptions, PolicySpec};
 
 /// What a policy sees at one step (the env's observation, without MuJoCo types).
 #[derive(Debug, Clone, Default)]

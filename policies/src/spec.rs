@@ -1,5 +1,6 @@
 //! Naming a policy on the command line and recording its identity in the run manifest.
 
+use crate::placement::{ModelDevice, Quantization, devices_text, parse_devices};
 use crate::remote::openpi::{LIBERO_REPLAN_STEPS, OpenpiConfig, OpenpiPolicy};
 use crate::remote::starvla::{StarVlaConfig, StarVlaPolicy};
 use crate::remote::vla_eval::{VlaEvalConfig, VlaEvalPolicy};
@@ -24,14 +25,13 @@ pub enum PolicySpec {
     /// with `batch`, the rollout workers' queries share forwards of up to N episodes).
     TorchScript { file: std::path::PathBuf, batch: Option<Batching> },
     /// OpenVLA in process from a Hugging Face checkpoint directory
-    /// (`openvla:<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]`; with `batch`, the rollout workers'
-    /// queries share forwards of up to N episodes).
-    OpenVla { dir: std::path::PathBuf, unnorm_key: Option<String>, batch: Option<Batching> },
+    /// (`openvla:<dir>[?unnorm=<key>][&batch=N[&wait_ms=W][&devices=D,D...]][&quant=int8|int4]`; with
+    /// `batch`, the rollout workers' queries share forwards of up to N episodes).
+    OpenVla(CheckpointOptions),
     /// OpenVLA-OFT in process from its released LIBERO checkpoint directory (the HF files,
-    /// `action_head--*.pt`, `proprio_projector--*.pt`, `dataset_statistics.json`;
-    /// `oft:<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]`): two cameras and the state, an 8-action
-    /// chunk per query, executed whole.
-    Oft { dir: std::path::PathBuf, unnorm_key: Option<String>, batch: Option<Batching> },
+    /// `action_head--*.pt`, `proprio_projector--*.pt`, `dataset_statistics.json`; the same options
+    /// as `openvla:`): two cameras and the state, an 8-action chunk per query, executed whole.
+    Oft(CheckpointOptions),
     /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`).
     Openpi { url: String, replan_steps: usize },
     /// A model served by vla-eval's model server (`vla-eval:ws://host:port`): the server's
@@ -61,6 +61,42 @@ impl StarVlaOptions {
             chunk: self.chunk,
             state: self.state,
             ..StarVlaConfig::new(self.url.clone())
+        }
+    }
+}
+
+/// The options of an in-process checkpoint policy (`openvla:`, `oft:`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CheckpointOptions {
+    pub dir: std::path::PathBuf,
+    pub unnorm_key: Option<String>,
+    pub batch: Option<Batching>,
+    /// Weight-only quantisation of the linear layers (`quant=int8|int4`).
+    pub quant: Quantization,
+    /// One model replica per device, each with its own batcher (`devices=cuda:0,cuda:1`, with
+    /// `batch`); empty: one model on the default device (the first GPU, else the CPU).
+    pub devices: Vec<ModelDevice>,
+}
+
+impl CheckpointOptions {
+    fn options(&self) -> Vec<String> {
+        let mut options: Vec<String> = self.unnorm_key.iter().map(|k| format!("unnorm={k}")).collect();
+        options.extend(self.batch.iter().flat_map(Batching::options));
+        if !self.devices.is_empty() {
+            options.push(format!("devices={}", devices_text(&self.devices)));
+        }
+        if self.quant != Quantization::None {
+            options.push(format!("quant={}", self.quant));
+        }
+        options
+    }
+
+    /// The replicas' devices: the listed ones, or the default device once.
+    #[cfg(feature = "torch")]
+    fn replica_devices(&self) -> Vec<Option<ModelDevice>> {
+        match self.devices.is_empty() {
+            true => vec![None],
+            false => self.devices.iter().copied().map(Some).collect(),
         }
     }
 }
@@ -101,10 +137,8 @@ impl PolicySpec {
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
             PolicySpec::ExpertDrop => Box::new(ExpertDrop::new()),
             PolicySpec::TorchScript { file, batch } => load_torchscript(file, *batch, &self.to_string())?,
-            PolicySpec::OpenVla { dir, unnorm_key, batch } => {
-                load_openvla(dir, unnorm_key.clone(), *batch, &self.to_string())?
-            }
-            PolicySpec::Oft { dir, unnorm_key, batch } => load_oft(dir, unnorm_key.clone(), *batch, &self.to_string())?,
+            PolicySpec::OpenVla(o) => load_openvla(o, &self.to_string())?,
+            PolicySpec::Oft(o) => load_oft(o, &self.to_string())?,
             PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
                 replan_steps: *replan_steps,
                 ..OpenpiConfig::new(url.clone())
@@ -154,17 +188,25 @@ impl PolicySpec {
                 Ok(crate::models::torchscript::TorchScriptModel::load(file)?.identity(batch.map(|b| b.max_episodes)))
             }
             #[cfg(feature = "torch")]
-            PolicySpec::OpenVla { dir, unnorm_key, batch } => crate::models::openvla::OpenVlaPolicy::identity_of(
-                dir,
-                unnorm_key.as_deref(),
-                batch.map(|b| b.max_episodes),
-            ),
+            PolicySpec::OpenVla(o) => {
+                let mut identity = crate::models::openvla::OpenVlaPolicy::identity_of(
+                    &o.dir,
+                    o.unnorm_key.as_deref(),
+                    o.batch.map(|b| b.max_episodes),
+                )?;
+                placement_identity(&mut identity, o, "openvla")?;
+                Ok(identity)
+            }
             #[cfg(feature = "torch")]
-            PolicySpec::Oft { dir, unnorm_key, batch } => crate::models::openvla::oft::OftPolicy::identity_of(
-                dir,
-                unnorm_key.as_deref(),
-                batch.map(|b| b.max_episodes),
-            ),
+            PolicySpec::Oft(o) => {
+                let mut identity = crate::models::openvla::oft::OftPolicy::identity_of(
+                    &o.dir,
+                    o.unnorm_key.as_deref(),
+                    o.batch.map(|b| b.max_episodes),
+                )?;
+                placement_identity(&mut identity, o, "oft")?;
+                Ok(identity)
+            }
             _ => Ok(self.identity()),
         }
     }
@@ -188,14 +230,11 @@ impl PolicySpec {
             PolicySpec::NanAt(n) => {
                 serde_json::json!({"kind": "diagnostic", "name": "nan-at", "step": n})
             }
-            PolicySpec::OpenVla { dir, unnorm_key, batch } => serde_json::json!({
-                "kind": "openvla", "checkpoint": dir.display().to_string(), "unnorm_key": unnorm_key,
-                "batch": batch.map(|b| b.max_episodes),
-                "checkpoint_sha256": "read at run start (resolve_identity)",
-            }),
-            PolicySpec::Oft { dir, unnorm_key, batch } => serde_json::json!({
-                "kind": "openvla-oft", "checkpoint": dir.display().to_string(), "unnorm_key": unnorm_key,
-                "batch": batch.map(|b| b.max_episodes),
+            PolicySpec::OpenVla(o) | PolicySpec::Oft(o) => serde_json::json!({
+                "kind": if matches!(self, PolicySpec::Oft(_)) { "openvla-oft" } else { "openvla" },
+                "checkpoint": o.dir.display().to_string(), "unnorm_key": o.unnorm_key,
+                "batch": o.batch.map(|b| b.max_episodes),
+                "quantization": o.quant.to_string(), "devices": devices_text(&o.devices),
                 "checkpoint_sha256": "read at run start (resolve_identity)",
             }),
             PolicySpec::TorchScript { file, .. } => serde_json::json!({
@@ -232,13 +271,12 @@ impl fmt::Display for PolicySpec {
             PolicySpec::Expert => f.write_str("expert"),
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
             PolicySpec::ExpertDrop => f.write_str("expert-drop"),
-            PolicySpec::OpenVla { dir, unnorm_key, batch } | PolicySpec::Oft { dir, unnorm_key, batch } => {
-                let kind = if matches!(self, PolicySpec::Oft { .. }) { "oft" } else { "openvla" };
-                let mut options: Vec<String> = unnorm_key.iter().map(|k| format!("unnorm={k}")).collect();
-                options.extend(batch.iter().flat_map(Batching::options));
+            PolicySpec::OpenVla(o) | PolicySpec::Oft(o) => {
+                let kind = if matches!(self, PolicySpec::Oft(_)) { "oft" } else { "openvla" };
+                let options = o.options();
                 match options.is_empty() {
-                    true => write!(f, "{kind}:{}", dir.display()),
-                    false => write!(f, "{kind}:{}?{}", dir.display(), options.join("&")),
+                    true => write!(f, "{kind}:{}", o.dir.display()),
+                    false => write!(f, "{kind}:{}?{}", o.dir.display(), options.join("&")),
                 }
             }
             PolicySpec::TorchScript { file, batch: None } => write!(f, "torchscript:{}", file.display()),
@@ -283,27 +321,51 @@ impl FromStr for PolicySpec {
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => Err(format!(
-                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1], torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N], oft:<checkpoint dir>[?unnorm=<key>][&batch=N]; diagnostics: nan-at:<policy step>, expert-drop"
+                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1], torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N[&devices=cuda:0,cuda:1]][&quant=int8|int4], oft:<checkpoint dir>[?unnorm=<key>][&batch=N[&devices=...]][&quant=int8|int4]; diagnostics: nan-at:<policy step>, expert-drop"
                 )),
             },
         }
     }
 }
 
-/// A worker's policy on the process-wide batcher of `spec` (its text, options included: one model
-/// and one batcher per distinct spec), loading the model with the first worker.
+/// A worker's policy on the process-wide replicas of `spec` (its text, options included: one set
+/// of model replicas, each with its batcher, per distinct spec), loading them with the first
+/// worker: one replica per device, loaded in parallel.
 #[cfg(feature = "torch")]
 fn batched<M: crate::batching::BatchModel>(
     spec: &str,
     batching: Batching,
+    devices: &[Option<ModelDevice>],
     policy: &str,
-    load: impl FnOnce() -> Result<M, PolicyError>,
+    load: impl Fn(Option<ModelDevice>) -> Result<M, PolicyError> + Sync,
 ) -> Result<Box<dyn Policy>, PolicyError> {
-    use crate::batching::{BatchedPolicy, shared_batcher};
+    use crate::batching::{BatchedPolicy, shared_replicas};
     let wait = std::time::Duration::from_millis(batching.wait_ms);
-    let batcher = shared_batcher(spec, || Ok((load()?, batching.max_episodes, wait)))?;
-    let replan = batcher.replan_steps();
-    Ok(Box::new(BatchedPolicy::new(batcher, replan, policy)))
+    let replicas = shared_replicas(spec, devices.len(), |i| Ok((load(devices[i])?, batching.max_episodes, wait)))?;
+    Ok(Box::new(BatchedPolicy::on_replicas(replicas, policy)))
+}
+
+/// Adds where the model runs and how its weights are stored to a checkpoint policy's identity,
+/// after checking that each device exists here (a missing GPU stops the run before any episode).
+#[cfg(feature = "torch")]
+fn placement_identity(
+    identity: &mut serde_json::Value,
+    o: &CheckpointOptions,
+    policy: &str,
+) -> Result<(), PolicyError> {
+    let mut devices = Vec::new();
+    for d in o.replica_devices() {
+        let (device, kind) =
+            crate::models::device_and_dtype(d).map_err(|detail| PolicyError { policy: policy.into(), detail })?;
+        devices.push(format!("{device:?}"));
+        identity["dtype"] = serde_json::json!(format!("{kind:?}"));
+    }
+    identity["replicas"] = serde_json::json!({
+        "devices": devices,
+        "assignment": "each episode on the replica with the fewest episodes in progress when it starts",
+    });
+    identity["quantization"] = serde_json::json!(o.quant.describe());
+    Ok(())
 }
 
 #[cfg(feature = "torch")]
@@ -315,45 +377,36 @@ fn load_torchscript(
     use crate::models::torchscript::{TorchScriptModel, TorchScriptPolicy};
     match batch {
         None => Ok(Box::new(TorchScriptPolicy::load(file)?)),
-        Some(n) => batched(spec, n, "torchscript", || TorchScriptModel::load(file)),
+        Some(n) => batched(spec, n, &[None], "torchscript", |_| TorchScriptModel::load(file)),
     }
 }
 
 #[cfg(feature = "torch")]
-fn load_openvla(
-    dir: &std::path::Path,
-    unnorm_key: Option<String>,
-    batch: Option<Batching>,
-    spec: &str,
-) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_openvla(o: &CheckpointOptions, spec: &str) -> Result<Box<dyn Policy>, PolicyError> {
     use crate::models::openvla::{OpenVlaBatchModel, OpenVlaPolicy};
-    match batch {
-        None => Ok(Box::new(OpenVlaPolicy::load(dir, unnorm_key)?)),
-        Some(n) => batched(spec, n, "openvla", || OpenVlaBatchModel::load(dir, unnorm_key)),
+    let (dir, key, quant) = (&o.dir, &o.unnorm_key, o.quant);
+    match o.batch {
+        None => Ok(Box::new(OpenVlaPolicy::load(dir, key.clone(), None, quant)?)),
+        Some(n) => batched(spec, n, &o.replica_devices(), "openvla", |device| {
+            OpenVlaBatchModel::load(dir, key.clone(), device, quant)
+        }),
     }
 }
 
 #[cfg(feature = "torch")]
-fn load_oft(
-    dir: &std::path::Path,
-    unnorm_key: Option<String>,
-    batch: Option<Batching>,
-    spec: &str,
-) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_oft(o: &CheckpointOptions, spec: &str) -> Result<Box<dyn Policy>, PolicyError> {
     use crate::models::openvla::oft::{OftBatchModel, OftPolicy};
-    match batch {
-        None => Ok(Box::new(OftPolicy::load(dir, unnorm_key)?)),
-        Some(n) => batched(spec, n, "oft", || OftBatchModel::load(dir, unnorm_key)),
+    let (dir, key, quant) = (&o.dir, &o.unnorm_key, o.quant);
+    match o.batch {
+        None => Ok(Box::new(OftPolicy::load(dir, key.clone(), None, quant)?)),
+        Some(n) => {
+            batched(spec, n, &o.replica_devices(), "oft", |device| OftBatchModel::load(dir, key.clone(), device, quant))
+        }
     }
 }
 
 #[cfg(not(feature = "torch"))]
-fn load_oft(
-    _: &std::path::Path,
-    _: Option<String>,
-    _: Option<Batching>,
-    _: &str,
-) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_oft(_: &CheckpointOptions, _: &str) -> Result<Box<dyn Policy>, PolicyError> {
     Err(PolicyError {
         policy: "oft".into(),
         detail: "this build has no libtorch (built without the `torch` feature)".into(),
@@ -361,12 +414,7 @@ fn load_oft(
 }
 
 #[cfg(not(feature = "torch"))]
-fn load_openvla(
-    _: &std::path::Path,
-    _: Option<String>,
-    _: Option<Batching>,
-    _: &str,
-) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_openvla(_: &CheckpointOptions, _: &str) -> Result<Box<dyn Policy>, PolicyError> {
     Err(PolicyError {
         policy: "openvla".into(),
         detail: "this build has no libtorch (built without the `torch` feature)".into(),
@@ -415,6 +463,10 @@ fn option_help(name: &str) -> &'static str {
         "stats" => "stats=<dataset_statistics.json> (the older generation's action bounds)",
         "chunk" => "chunk=N with N >= 1 (actions executed per query)",
         "state" => "state=0|1 (send the 8-D state)",
+        "quant" => "quant=int8|int4 (weight-only quantisation of the linear layers)",
+        "devices" => {
+            "devices=cuda:0,cuda:1 (with batch: one model replica per device; cpu, cuda or cuda:N, a device may repeat)"
+        }
         _ => "?",
     }
 }
@@ -440,29 +492,40 @@ fn batching(
     }
 }
 
-/// `<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]` of `openvla:...` (options in any order).
+/// `<dir>[?unnorm=<key>][&batch=N[&wait_ms=W][&devices=...]][&quant=...]` of `openvla:...`
+/// (options in any order).
 fn parse_openvla(rest: &str) -> Result<PolicySpec, String> {
-    let (dir, unnorm_key, batch) = checkpoint_options("openvla", rest)?;
-    Ok(PolicySpec::OpenVla { dir, unnorm_key, batch })
+    Ok(PolicySpec::OpenVla(checkpoint_options("openvla", rest)?))
 }
 
-/// `<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]` of `oft:...` (options in any order).
+/// The same options as `openvla:`, of `oft:...`.
 fn parse_oft(rest: &str) -> Result<PolicySpec, String> {
-    let (dir, unnorm_key, batch) = checkpoint_options("oft", rest)?;
-    Ok(PolicySpec::Oft { dir, unnorm_key, batch })
+    Ok(PolicySpec::Oft(checkpoint_options("oft", rest)?))
 }
 
-/// A checkpoint directory with `unnorm` and batching options.
-fn checkpoint_options(
-    kind: &str,
-    rest: &str,
-) -> Result<(std::path::PathBuf, Option<String>, Option<Batching>), String> {
-    let (dir, options) = model_options(kind, rest, &["unnorm", "batch", "wait_ms"])?;
+/// A checkpoint directory with `unnorm`, batching, device and quantisation options.
+fn checkpoint_options(kind: &str, rest: &str) -> Result<CheckpointOptions, String> {
+    let (dir, options) = model_options(kind, rest, &["unnorm", "batch", "wait_ms", "devices", "quant"])?;
+    let bad = |name: &str, why: String| format!("{kind}:{rest}: expected {} ({why})", option_help(name));
     let unnorm_key = match options.get("unnorm") {
         Some(&"") => return Err(format!("{kind}:{rest}: expected {}", option_help("unnorm"))),
         k => k.map(|k| k.to_string()),
     };
-    Ok((dir.into(), unnorm_key, batching(kind, rest, &options)?))
+    let quant = match options.get("quant") {
+        None => Quantization::None,
+        Some(q) => q.parse().map_err(|e| bad("quant", e))?,
+    };
+    let devices = match options.get("devices") {
+        None => Vec::new(),
+        Some(d) => parse_devices(d).map_err(|e| bad("devices", e))?,
+    };
+    let batch = batching(kind, rest, &options)?;
+    if !devices.is_empty() && batch.is_none() {
+        return Err(format!(
+            "{kind}:{rest}: devices needs batch=N (each device's replica serves its episodes through its own batcher)"
+        ));
+    }
+    Ok(CheckpointOptions { dir: dir.into(), unnorm_key, batch, quant, devices })
 }
 
 /// `<file>[?batch=N[&wait_ms=W]]` of `torchscript:...`.
@@ -596,6 +659,21 @@ mod tests {
     }
 
     #[test]
+    fn replicas_and_quantisation_parse_and_print_back() {
+        let text = "openvla:/c?quant=int4&devices=cuda:0,cuda:1&batch=32&unnorm=k";
+        let p: PolicySpec = text.parse().unwrap();
+        let PolicySpec::OpenVla(o) = &p else { panic!("{p:?}") };
+        assert_eq!(o.devices, [ModelDevice::Cuda(0), ModelDevice::Cuda(1)]);
+        assert_eq!(o.quant, Quantization::Int4);
+        let printed = "openvla:/c?unnorm=k&batch=32&devices=cuda:0,cuda:1&quant=int4";
+        assert_eq!(p.to_string(), printed);
+        assert_eq!(printed.parse::<PolicySpec>().unwrap(), p);
+        let p: PolicySpec = "oft:/c?batch=4&devices=cpu,cpu&quant=int8".parse().unwrap();
+        assert_eq!(p.to_string(), "oft:/c?batch=4&devices=cpu,cpu&quant=int8");
+        assert_eq!(p.identity()["devices"], "cpu,cpu");
+    }
+
+    #[test]
     fn openvla_specs_parse_in_any_option_order_and_print_back() {
         let dir = std::path::PathBuf::from("/ckpt/openvla-7b");
         let cases = [
@@ -618,14 +696,21 @@ mod tests {
         for (text, unnorm, batch, printed) in cases {
             let batch = batch.map(|(max_episodes, wait_ms)| Batching { max_episodes, wait_ms });
             let p: PolicySpec = text.parse().unwrap();
-            let expected = PolicySpec::OpenVla { dir: dir.clone(), unnorm_key: unnorm.map(str::to_string), batch };
+            let options = CheckpointOptions {
+                dir: dir.clone(),
+                unnorm_key: unnorm.map(str::to_string),
+                batch,
+                quant: Quantization::None,
+                devices: Vec::new(),
+            };
+            let expected = PolicySpec::OpenVla(options.clone());
             assert_eq!(p, expected, "{text}");
             assert_eq!(p.to_string(), printed);
             assert_eq!(printed.parse::<PolicySpec>().unwrap(), expected, "{printed} reads back");
             // oft: takes the same options
             let oft_text = text.replacen("openvla:", "oft:", 1);
             let p: PolicySpec = oft_text.parse().unwrap();
-            let expected = PolicySpec::Oft { dir: dir.clone(), unnorm_key: unnorm.map(str::to_string), batch };
+            let expected = PolicySpec::Oft(options);
             assert_eq!(p, expected, "{oft_text}");
             assert_eq!(p.to_string(), printed.replacen("openvla:", "oft:", 1));
             assert!(p.sees_cameras());
@@ -643,6 +728,10 @@ mod tests {
             ("oft:/c?unnorm=", "unnorm=<dataset key>"),
             ("oft:/c?replan=8", "unknown option"),
             ("torchscript:/m.pt?batch=0", "batch=N"),
+            ("openvla:/c?devices=cuda:0,cuda:1", "devices needs batch=N"),
+            ("openvla:/c?batch=2&devices=gpu0", "cuda:N"),
+            ("oft:/c?quant=int2", "int8 or int4"),
+            ("torchscript:/m.pt?quant=int8", "unknown option"),
         ] {
             let e = bad.parse::<PolicySpec>().unwrap_err();
             assert!(e.contains(says), "{bad}: {e}");

@@ -7,6 +7,7 @@
 //!   towers, projector, Llama-2, token decoding), and [`openvla::oft`], OpenVLA-OFT on the same
 //!   backbone (two images, proprio token, one bidirectional forward, L1 head's 8 × 7 chunk).
 //! - [`torch_save`]: `torch.save` archives read without Python (OFT's head files).
+//! - [`quant`]: weight-only int8/int4 linear layers (`?quant=`), for GPUs with less memory.
 //!
 //! Each model is two layers: the model (load, forward, parity-tested against its Python reference
 //! on a tiny random-weight checkpoint) and its [`crate::Policy`] (the published LIBERO loop's
@@ -16,17 +17,35 @@
 //! outside this module, shared with the remote clients.
 
 pub mod openvla;
+pub mod quant;
 pub mod torch_save;
 pub mod torchscript;
 
+use crate::placement::ModelDevice;
 use sha2::{Digest, Sha256};
 use std::path::Path;
 use tch::{Device, Kind};
 
-/// bf16 on a GPU (the released checkpoints' dtype), fp32 on a CPU.
-pub(crate) fn device_and_dtype() -> (Device, Kind) {
-    let device = Device::cuda_if_available();
-    (device, if device.is_cuda() { Kind::BFloat16 } else { Kind::Float })
+/// The tch device of `device` (the first GPU when there is one, else the CPU, for `None`) and the
+/// dtype a model computes in there: bf16 on a GPU (the released checkpoints' dtype), fp32 on a
+/// CPU. A CUDA device this machine does not have is an error that says which it has.
+pub(crate) fn device_and_dtype(device: Option<ModelDevice>) -> Result<(Device, Kind), String> {
+    let device = match device {
+        None => Device::cuda_if_available(),
+        Some(ModelDevice::Cpu) => Device::Cpu,
+        Some(ModelDevice::Cuda(i)) => {
+            let n = tch::Cuda::device_count().max(0) as usize;
+            if i >= n {
+                let has = match n {
+                    0 => "no CUDA device (or a libtorch without CUDA)".to_string(),
+                    n => format!("cuda:0 to cuda:{}", n - 1),
+                };
+                return Err(format!("devices: cuda:{i} is not on this machine, which has {has}"));
+            }
+            Device::Cuda(i)
+        }
+    };
+    Ok((device, if device.is_cuda() { Kind::BFloat16 } else { Kind::Float }))
 }
 
 /// sha256 over the files of `dir` with these extensions (name and bytes), sorted by name.

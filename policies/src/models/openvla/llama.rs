@@ -8,18 +8,19 @@
 use super::OpenVlaError;
 use super::config::LlamaConfig;
 use super::weights::Weights;
+use crate::models::quant::Linear;
 use tch::{Device, Kind, Tensor};
 
 struct Layer {
     input_norm: Tensor,
-    q: Tensor,
-    k: Tensor,
-    v: Tensor,
-    o: Tensor,
+    q: Linear,
+    k: Linear,
+    v: Linear,
+    o: Linear,
     post_norm: Tensor,
-    gate: Tensor,
-    up: Tensor,
-    down: Tensor,
+    gate: Linear,
+    up: Linear,
+    down: Linear,
 }
 
 /// Which of transformers' attention implementations the forward reproduces. In fp32 on a CPU they
@@ -64,17 +65,17 @@ impl Llama {
         let p = "language_model.model.";
         let mut layers = Vec::new();
         for i in 0..cfg.num_hidden_layers {
-            let mut t = |s: &str| w.take(&format!("{p}layers.{i}.{s}.weight"));
+            let name = |s: &str| format!("{p}layers.{i}.{s}.weight");
             layers.push(Layer {
-                input_norm: t("input_layernorm")?,
-                q: t("self_attn.q_proj")?,
-                k: t("self_attn.k_proj")?,
-                v: t("self_attn.v_proj")?,
-                o: t("self_attn.o_proj")?,
-                post_norm: t("post_attention_layernorm")?,
-                gate: t("mlp.gate_proj")?,
-                up: t("mlp.up_proj")?,
-                down: t("mlp.down_proj")?,
+                input_norm: w.take(&name("input_layernorm"))?,
+                q: w.take_linear(&name("self_attn.q_proj"))?,
+                k: w.take_linear(&name("self_attn.k_proj"))?,
+                v: w.take_linear(&name("self_attn.v_proj"))?,
+                o: w.take_linear(&name("self_attn.o_proj"))?,
+                post_norm: w.take(&name("post_attention_layernorm"))?,
+                gate: w.take_linear(&name("mlp.gate_proj"))?,
+                up: w.take_linear(&name("mlp.up_proj"))?,
+                down: w.take_linear(&name("mlp.down_proj"))?,
             });
         }
         let head_dim = cfg.hidden_size / cfg.num_attention_heads;
@@ -198,9 +199,9 @@ impl Llama {
         let mut x = embeds.shallow_clone();
         for (li, l) in self.layers.iter().enumerate() {
             let h = self.rms_norm(&x, &l.input_norm);
-            let q = rope(&h.linear(&l.q, None::<Tensor>).view([b, t, nh, hd]).transpose(1, 2));
-            let k = rope(&h.linear(&l.k, None::<Tensor>).view([b, t, nkv, hd]).transpose(1, 2));
-            let v = h.linear(&l.v, None::<Tensor>).view([b, t, nkv, hd]).transpose(1, 2);
+            let q = rope(&l.q.forward(&h, None).view([b, t, nh, hd]).transpose(1, 2));
+            let k = rope(&l.k.forward(&h, None).view([b, t, nkv, hd]).transpose(1, 2));
+            let v = l.v.forward(&h, None).view([b, t, nkv, hd]).transpose(1, 2);
             let (k, v) = match cache.kv[li].take() {
                 Some((pk, pv)) => (Tensor::cat(&[&pk, &k], 2), Tensor::cat(&[&pv, &v], 2)),
                 None => (k, v),
@@ -224,10 +225,10 @@ impl Llama {
                 }
             };
             let o = o.transpose(1, 2).reshape([b, t, nh * hd]);
-            x = x + o.linear(&l.o, None::<Tensor>);
+            x = x + l.o.forward(&o, None);
             let h = self.rms_norm(&x, &l.post_norm);
-            let g = h.linear(&l.gate, None::<Tensor>).silu() * h.linear(&l.up, None::<Tensor>);
-            x = x + g.linear(&l.down, None::<Tensor>);
+            let g = l.gate.forward(&h, None).silu() * l.up.forward(&h, None);
+            x = x + l.down.forward(&g, None);
         }
         cache.len = total;
         x

@@ -36,6 +36,7 @@ mod vision;
 mod weights;
 
 use crate::PolicyError;
+use crate::placement::Quantization;
 use crate::preprocess::RgbImage;
 pub use action::ActionBins;
 pub use config::OpenVlaConfig;
@@ -95,6 +96,13 @@ impl OpenVlaModel {
     /// Loads `dir` on `device` with weights and activations in `kind` (the released checkpoints are
     /// bf16; RMSNorm, softmax and the logits are computed in f32 as transformers does).
     pub fn load_on(dir: &Path, device: Device, kind: Kind) -> Result<Self, OpenVlaError> {
+        Self::load_quantized(dir, device, kind, Quantization::None)
+    }
+
+    /// [`Self::load_on`] with the linear layers of the vision towers, the projector and the
+    /// language model stored as `quant` says (`models::quant`; the embeddings, the LM head, the
+    /// norms and the patch embedding stay in `kind`).
+    pub fn load_quantized(dir: &Path, device: Device, kind: Kind, quant: Quantization) -> Result<Self, OpenVlaError> {
         let config = OpenVlaConfig::load(dir)?;
         let tok_path = dir.join("tokenizer.json");
         if !tok_path.exists() {
@@ -108,7 +116,7 @@ impl OpenVlaModel {
             tokenizers::Tokenizer::from_file(&tok_path).map_err(|e| bad(format!("{}: {e}", tok_path.display())))?;
         let bos =
             tokenizer.token_to_id("<s>").ok_or_else(|| bad(format!("{}: no <s> token", tok_path.display())))? as i64;
-        let mut w = weights::Weights::load(dir, device, kind)?;
+        let mut w = weights::Weights::load(dir, device, kind, quant)?;
         let names = ["vision_backbone.featurizer.", "vision_backbone.fused_featurizer."];
         let mut featurizers = Vec::new();
         for (bc, prefix) in config.backbones.iter().zip(names) {

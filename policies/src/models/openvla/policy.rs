@@ -7,6 +7,7 @@
 use super::{OpenVlaModel, OpenVlaPrediction};
 use crate::batching::{BatchModel, Preparer, Request};
 use crate::models::{device_and_dtype, files_hash};
+use crate::placement::{ModelDevice, Quantization};
 use crate::postprocess::Gripper;
 use crate::preprocess::{ImagePipeline, RgbImage};
 use crate::{Action, Observation, Policy, PolicyError};
@@ -35,9 +36,15 @@ fn check_unnorm_key(config: &super::OpenVlaConfig, unnorm_key: Option<&str>) -> 
 impl OpenVlaPolicy {
     /// Load the checkpoint directory; a wrong or missing `unnorm_key` fails here, listing the keys
     /// the checkpoint has.
-    pub fn load(dir: &Path, unnorm_key: Option<String>) -> Result<Self, PolicyError> {
-        let (device, dtype) = device_and_dtype();
-        let model = OpenVlaModel::load_on(dir, device, dtype).map_err(|e| err(e.to_string()))?;
+    /// On `device` (the first GPU, else the CPU, for `None`), its linear layers stored as `quant` says.
+    pub fn load(
+        dir: &Path,
+        unnorm_key: Option<String>,
+        device: Option<ModelDevice>,
+        quant: Quantization,
+    ) -> Result<Self, PolicyError> {
+        let (device, dtype) = device_and_dtype(device).map_err(err)?;
+        let model = OpenVlaModel::load_quantized(dir, device, dtype, quant).map_err(|e| err(e.to_string()))?;
         check_unnorm_key(model.config(), unnorm_key.as_deref())?;
         Ok(OpenVlaPolicy { model, unnorm_key, instruction: String::new() })
     }
@@ -66,7 +73,7 @@ impl OpenVlaPolicy {
                 || serde_json::json!("one episode per forward"),
                 |n| serde_json::json!({"max_episodes_per_forward": n, "padding": "left, masked"})
             ),
-            "dtype": format!("{:?}", device_and_dtype().1),
+            "dtype": "bf16 on a GPU, f32 on a CPU",
         }))
     }
 }
@@ -126,8 +133,13 @@ pub struct OpenVlaBatchModel {
 }
 
 impl OpenVlaBatchModel {
-    pub fn load(dir: &Path, unnorm_key: Option<String>) -> Result<Self, PolicyError> {
-        let OpenVlaPolicy { model, unnorm_key, .. } = OpenVlaPolicy::load(dir, unnorm_key)?;
+    pub fn load(
+        dir: &Path,
+        unnorm_key: Option<String>,
+        device: Option<ModelDevice>,
+        quant: Quantization,
+    ) -> Result<Self, PolicyError> {
+        let OpenVlaPolicy { model, unnorm_key, .. } = OpenVlaPolicy::load(dir, unnorm_key, device, quant)?;
         Ok(OpenVlaBatchModel { model, unnorm_key })
     }
 }

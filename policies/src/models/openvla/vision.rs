@@ -11,18 +11,22 @@
 
 use super::weights::Weights;
 use super::{OpenVlaError, bad};
+use crate::models::quant::Linear;
 use tch::Tensor;
 
 const LN_EPS: f64 = 1e-6;
 
+/// A linear layer with its bias.
+type Affine = (Linear, Tensor);
+
 struct Block {
     norm1: (Tensor, Tensor),
-    qkv: (Tensor, Tensor),
-    proj: (Tensor, Tensor),
+    qkv: Affine,
+    proj: Affine,
     ls1: Option<Tensor>,
     norm2: (Tensor, Tensor),
-    fc1: (Tensor, Tensor),
-    fc2: (Tensor, Tensor),
+    fc1: Affine,
+    fc2: Affine,
     ls2: Option<Tensor>,
 }
 
@@ -46,8 +50,8 @@ fn ln(x: &Tensor, (w, b): &(Tensor, Tensor)) -> Tensor {
     x.layer_norm([w.size()[0]], Some(w), Some(b), LN_EPS, true)
 }
 
-fn linear(x: &Tensor, (w, b): &(Tensor, Tensor)) -> Tensor {
-    x.linear(w, Some(b))
+fn linear(x: &Tensor, (w, b): &Affine) -> Tensor {
+    w.forward(x, Some(b))
 }
 
 impl Vit {
@@ -98,16 +102,19 @@ impl Vit {
         let mut blocks = Vec::new();
         for i in 0..depth - 1 {
             let b = |s: &str| format!("{prefix}blocks.{i}.{s}");
-            let mut pair = |s: &str| -> Result<(Tensor, Tensor), OpenVlaError> {
+            let norm = |w: &mut Weights, s: &str| -> Result<(Tensor, Tensor), OpenVlaError> {
                 Ok((w.take(&b(&format!("{s}.weight")))?, w.take(&b(&format!("{s}.bias")))?))
             };
+            let affine = |w: &mut Weights, s: &str| -> Result<Affine, OpenVlaError> {
+                Ok((w.take_linear(&b(&format!("{s}.weight")))?, w.take(&b(&format!("{s}.bias")))?))
+            };
             blocks.push(Block {
-                norm1: pair("norm1")?,
-                qkv: pair("attn.qkv")?,
-                proj: pair("attn.proj")?,
-                norm2: pair("norm2")?,
-                fc1: pair("mlp.fc1")?,
-                fc2: pair("mlp.fc2")?,
+                norm1: norm(w, "norm1")?,
+                qkv: affine(w, "attn.qkv")?,
+                proj: affine(w, "attn.proj")?,
+                norm2: norm(w, "norm2")?,
+                fc1: affine(w, "mlp.fc1")?,
+                fc2: affine(w, "mlp.fc2")?,
                 ls1: w.take_opt(&b("ls1.scale_factor")),
                 ls2: w.take_opt(&b("ls2.scale_factor")),
             });
@@ -179,17 +186,18 @@ impl Vit {
 pub struct VisionTower {
     featurizers: Vec<Vit>,
     /// `fc1, fc2[, fc3]` with GELU between (the fused backbone's `fused-gelu-mlp` has three).
-    projector: Vec<(Tensor, Tensor)>,
+    projector: Vec<Affine>,
 }
 
 impl VisionTower {
     pub fn new(featurizers: Vec<Vit>, w: &mut Weights) -> Result<Self, OpenVlaError> {
         let mut projector = Vec::new();
         for i in 1..=3 {
-            match w.take_opt(&format!("projector.fc{i}.weight")) {
-                Some(wt) => projector.push((wt, w.take(&format!("projector.fc{i}.bias"))?)),
-                None => break,
+            let weight = format!("projector.fc{i}.weight");
+            if !w.has(&weight) {
+                break;
             }
+            projector.push((w.take_linear(&weight)?, w.take(&format!("projector.fc{i}.bias"))?));
         }
         let width: i64 = featurizers.iter().map(Vit::embed_dim).sum();
         if projector.len() < 2 || projector[0].0.size()[1] != width {

@@ -1,17 +1,25 @@
 //! The checkpoint's tensors: every `*.safetensors` shard named by `model.safetensors.index.json`
-//! (or a single `model.safetensors`), converted to the model's dtype and device on load.
+//! (or a single `model.safetensors`), read into host memory, each moved to the model's device and
+//! dtype when the model takes it, and linear weights quantised there as they are taken
+//! ([`Weights::take_linear`]): the device never holds more than the model plus one layer's
+//! weight in f32, so a quantised 7B model loads on a card that its bf16 weights would not fit.
 
 use super::{OpenVlaError, bad};
+use crate::models::quant::Linear;
+use crate::placement::Quantization;
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 use tch::{Device, Kind, Tensor};
 
 pub struct Weights {
     tensors: HashMap<String, Tensor>,
+    device: Device,
+    kind: Kind,
+    quant: Quantization,
 }
 
 impl Weights {
-    pub fn load(dir: &Path, device: Device, kind: Kind) -> Result<Self, OpenVlaError> {
+    pub fn load(dir: &Path, device: Device, kind: Kind, quant: Quantization) -> Result<Self, OpenVlaError> {
         let index = dir.join("model.safetensors.index.json");
         let files: BTreeSet<String> = if index.exists() {
             let text = std::fs::read_to_string(&index).map_err(|e| bad(format!("{}: {e}", index.display())))?;
@@ -32,19 +40,28 @@ impl Weights {
         for f in files {
             let path = dir.join(&f);
             let named = Tensor::read_safetensors(&path).map_err(|e| bad(format!("{}: {e}", path.display())))?;
-            for (name, t) in named {
-                tensors.insert(name, t.to_device(device).to_kind(kind));
-            }
+            tensors.extend(named);
         }
-        Ok(Weights { tensors })
+        Ok(Weights { tensors, device, kind, quant })
     }
 
+    /// The tensor on the model's device, in its dtype.
     pub fn take(&mut self, name: &str) -> Result<Tensor, OpenVlaError> {
-        self.tensors.remove(name).ok_or_else(|| bad(format!("the checkpoint has no tensor {name:?}")))
+        self.take_opt(name).ok_or_else(|| bad(format!("the checkpoint has no tensor {name:?}")))
     }
 
     pub fn take_opt(&mut self, name: &str) -> Option<Tensor> {
-        self.tensors.remove(name)
+        // moved first, converted there: a GPU converts bf16 checkpoints far faster than the host
+        self.tensors.remove(name).map(|t| t.to_device(self.device).to_kind(self.kind))
+    }
+
+    pub fn has(&self, name: &str) -> bool {
+        self.tensors.contains_key(name)
+    }
+
+    /// A linear layer's weight `[out, in]`, quantised as the model is loaded.
+    pub fn take_linear(&mut self, name: &str) -> Result<Linear, OpenVlaError> {
+        Ok(Linear::new(self.take(name)?, self.quant))
     }
 
     /// How many `{prefix}{i}.` groups there are (blocks, layers), counting from 0.

@@ -34,6 +34,7 @@ pub use policy::{OftBatchModel, OftPolicy};
 
 use super::{OpenVlaError, OpenVlaModel, bad};
 use crate::models::torch_save::read_state_dict;
+use crate::placement::Quantization;
 use crate::postprocess::ActionStats;
 use crate::preprocess::RgbImage;
 use std::collections::HashMap;
@@ -315,9 +316,16 @@ impl OftModel {
 
     /// Loads `dir` on `device` in `kind` (bf16 on a GPU, as OFT's LIBERO runs).
     pub fn load_on(dir: &Path, device: Device, kind: Kind) -> Result<Self, OpenVlaError> {
+        Self::load_quantized(dir, device, kind, Quantization::None)
+    }
+
+    /// [`Self::load_on`] with the backbone's linear layers stored as `quant` says
+    /// ([`OpenVlaModel::load_quantized`]); the action head and the proprio projector (small, and
+    /// they compute the actions themselves) stay in `kind`.
+    pub fn load_quantized(dir: &Path, device: Device, kind: Kind, quant: Quantization) -> Result<Self, OpenVlaError> {
         let files = OftFiles::find(dir)?;
         let proprio_stats = proprio_stats(dir)?;
-        let mut base = OpenVlaModel::load_on(dir, device, kind)?;
+        let mut base = OpenVlaModel::load_quantized(dir, device, kind, quant)?;
         // openvla-oft's get_vla loads transformers' SDPA attention (its fork makes it bidirectional)
         base.set_attention(super::Attention::Sdpa);
         let hidden = base.config.text.hidden_size;

@@ -12,6 +12,7 @@ use super::{NUM_ACTIONS_CHUNK, OftModel, OftPrediction, OftQuery, PROPRIO_DIM};
 use crate::batching::{BatchModel, Preparer, Request};
 use crate::chunking::ActionChunker;
 use crate::models::{device_and_dtype, files_hash};
+use crate::placement::{ModelDevice, Quantization};
 use crate::postprocess::Gripper;
 use crate::preprocess::proprio::wxyz_to_xyzw;
 use crate::preprocess::{ImagePipeline, QuatSign, RgbImage, libero_state};
@@ -75,9 +76,16 @@ pub struct OftPolicy {
 
 impl OftPolicy {
     /// Load the checkpoint directory; a missing head file or a wrong `unnorm_key` fails here.
-    pub fn load(dir: &Path, unnorm_key: Option<String>) -> Result<Self, PolicyError> {
-        let (device, dtype) = device_and_dtype();
-        let model = OftModel::load_on(dir, device, dtype).map_err(rename)?;
+    /// On `device` (the first GPU, else the CPU, for `None`), the backbone's linear layers stored
+    /// as `quant` says.
+    pub fn load(
+        dir: &Path,
+        unnorm_key: Option<String>,
+        device: Option<ModelDevice>,
+        quant: Quantization,
+    ) -> Result<Self, PolicyError> {
+        let (device, dtype) = device_and_dtype(device).map_err(err)?;
+        let model = OftModel::load_quantized(dir, device, dtype, quant).map_err(rename)?;
         model.stats(unnorm_key.as_deref()).map_err(rename)?;
         Ok(OftPolicy { model, unnorm_key, instruction: String::new(), chunker: ActionChunker::new(NUM_ACTIONS_CHUNK) })
     }
@@ -119,7 +127,7 @@ impl OftPolicy {
                 || serde_json::json!("one episode per forward"),
                 |n| serde_json::json!({"max_episodes_per_forward": n, "padding": "left, masked"})
             ),
-            "dtype": format!("{:?}", device_and_dtype().1),
+            "dtype": "bf16 on a GPU, f32 on a CPU",
         }))
     }
 }
@@ -156,8 +164,13 @@ pub struct OftBatchModel {
 }
 
 impl OftBatchModel {
-    pub fn load(dir: &Path, unnorm_key: Option<String>) -> Result<Self, PolicyError> {
-        let OftPolicy { model, unnorm_key, .. } = OftPolicy::load(dir, unnorm_key)?;
+    pub fn load(
+        dir: &Path,
+        unnorm_key: Option<String>,
+        device: Option<ModelDevice>,
+        quant: Quantization,
+    ) -> Result<Self, PolicyError> {
+        let OftPolicy { model, unnorm_key, .. } = OftPolicy::load(dir, unnorm_key, device, quant)?;
         Ok(OftBatchModel { model, unnorm_key })
     }
 }

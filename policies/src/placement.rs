@@ -1,0 +1,136 @@
+//! Where an in-process model runs and how its weights are stored: the `devices=` and `quant=`
+//! options of a model policy (`openvla:<dir>?batch=32&devices=cuda:0,cuda:1&quant=int8`).
+//!
+//! These are names only (no libtorch here), so that a policy string parses and prints the same
+//! in a build without the `torch` feature; `models` turns them into tch devices and quantised
+//! layers.
+//!
+//! - **Devices.** One model replica per listed device, each behind its own batcher; an episode is
+//!   served by one replica from its start to its end, the replica with the fewest episodes in
+//!   progress when it starts (`batching::Replicas`). A device may be listed twice (two replicas on
+//!   one GPU, when one replica's host work leaves the GPU idle).
+//! - **Quantisation.** Weight-only, of the linear layers (`models::quant`): int8 per output
+//!   channel, int4 in groups of (up to) 128 along the input; activations stay in the model's dtype. For
+//!   8–16 GB cards: OpenVLA-7B's weights take ~15 GB in bf16.
+
+use std::fmt;
+use std::str::FromStr;
+
+/// A device a model replica runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum ModelDevice {
+    Cpu,
+    /// A CUDA device by its index (as `CUDA_VISIBLE_DEVICES` numbers them).
+    Cuda(usize),
+}
+
+impl fmt::Display for ModelDevice {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ModelDevice::Cpu => f.write_str("cpu"),
+            ModelDevice::Cuda(i) => write!(f, "cuda:{i}"),
+        }
+    }
+}
+
+impl FromStr for ModelDevice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "cpu" => Ok(ModelDevice::Cpu),
+            "cuda" => Ok(ModelDevice::Cuda(0)),
+            _ => match s.strip_prefix("cuda:").map(str::parse::<usize>) {
+                Some(Ok(i)) => Ok(ModelDevice::Cuda(i)),
+                _ => Err(format!("{s:?} is not a device: cpu, cuda or cuda:N")),
+            },
+        }
+    }
+}
+
+/// A comma-separated device list (`cuda:0,cuda:1`), at least one.
+pub fn parse_devices(s: &str) -> Result<Vec<ModelDevice>, String> {
+    let devices = s.split(',').map(str::parse).collect::<Result<Vec<ModelDevice>, _>>()?;
+    if devices.is_empty() {
+        return Err("no device listed".into());
+    }
+    Ok(devices)
+}
+
+/// `cuda:0,cuda:1`.
+pub fn devices_text(devices: &[ModelDevice]) -> String {
+    devices.iter().map(ModelDevice::to_string).collect::<Vec<_>>().join(",")
+}
+
+/// Weight-only quantisation of a model's linear layers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Quantization {
+    /// The checkpoint's weights in the model's dtype (bf16 on a GPU).
+    #[default]
+    None,
+    /// int8 per output channel, symmetric: `w ≈ q · scale`, `scale = max|w_row| / 127`.
+    Int8,
+    /// int4 in groups of 128 inputs (64 or 32 where the input width needs), asymmetric:
+    /// `w ≈ (q − 8) · scale + zero` (torch's tinygemm layout); a layer whose input width is not a
+    /// multiple of 32 falls back to int8.
+    Int4,
+}
+
+impl Quantization {
+    /// What the run manifest records.
+    pub fn describe(&self) -> &'static str {
+        match self {
+            Quantization::None => "none: the checkpoint's weights in the model's dtype",
+            Quantization::Int8 => {
+                "int8 weight-only: linear layers per output channel, symmetric (q = round(w / (max|w_row| / 127))), \
+                 dequantised to the activations' dtype per call; embeddings, lm_head, norms and the patch embedding unquantised"
+            }
+            Quantization::Int4 => {
+                "int4 weight-only: linear layers in groups of 128 inputs (64 or 32 where the width needs), asymmetric \
+                 (w = (q - 8) scale + zero, tinygemm's layout), int8 where the input width is not a multiple of 32; torch's \
+                 tinygemm kernel for up to 16 rows on CUDA, dequantised otherwise; embeddings, lm_head, norms and the \
+                 patch embedding unquantised"
+            }
+        }
+    }
+}
+
+impl fmt::Display for Quantization {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Quantization::None => "none",
+            Quantization::Int8 => "int8",
+            Quantization::Int4 => "int4",
+        })
+    }
+}
+
+impl FromStr for Quantization {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "none" => Ok(Quantization::None),
+            "int8" => Ok(Quantization::Int8),
+            "int4" => Ok(Quantization::Int4),
+            _ => Err(format!("{s:?} is not a quantisation: int8 or int4 (or none)")),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn devices_and_quantisations_parse_and_print_back() {
+        assert_eq!(parse_devices("cuda:0,cuda:1").unwrap(), [ModelDevice::Cuda(0), ModelDevice::Cuda(1)]);
+        assert_eq!(parse_devices("cuda").unwrap(), [ModelDevice::Cuda(0)]);
+        assert_eq!(devices_text(&parse_devices("cpu,cuda:3,cuda:3").unwrap()), "cpu,cuda:3,cuda:3");
+        for bad in ["", "gpu", "cuda:", "cuda:x", "cuda:0,", "cuda:-1"] {
+            assert!(parse_devices(bad).is_err(), "{bad:?}");
+        }
+        for q in [Quantization::None, Quantization::Int8, Quantization::Int4] {
+            assert_eq!(q.to_string().parse::<Quantization>().unwrap(), q);
+        }
+        assert!("int2".parse::<Quantization>().unwrap_err().contains("int8 or int4"));
+    }
+}

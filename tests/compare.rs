@@ -57,7 +57,7 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
             b.push(&StepRecord {
                 step: t as i32,
                 policy_step: p.map(|x| x as i32),
-                action: [0.0; 7],
+                action: first_action_of_b(policy, suite, init, p),
                 eef_pos: [0.0; 3],
                 eef_quat: [1.0, 0.0, 0.0, 0.0],
                 gripper_qpos: [0.0; 2],
@@ -95,6 +95,15 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
         write_episode_parts(dir, &key, b, &ep);
     }
     write_constructed_manifest(dir, policy, WAIT);
+}
+
+/// Every action is 0 but B's first in libero_spatial's init state 9 (both tasks): two of its
+/// dimensions differ from A's, by 0.25 and 1.
+fn first_action_of_b(policy: &str, suite: &str, init: i32, policy_step: Option<u32>) -> [f32; 7] {
+    match (policy, suite, init, policy_step) {
+        ("policy-b", "libero_spatial", 9, Some(0)) => [0.25, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0],
+        _ => [0.0; 7],
+    }
 }
 
 /// The two runs. libero_spatial (tasks 0 and 1, inits 0..9, seed 7): per task, A/B outcomes
@@ -203,6 +212,17 @@ fn compare_counts_the_discordant_pairs_and_the_unpaired_episodes() {
     let all = row(&suites, "suite", "all");
     assert_eq!(counts(all), strs([30, 13, 2, 6, 9, 2, 3]));
     check_statistics(all, [13, 2, 6, 9]);
+
+    // the 30 paired episodes' first actions: all equal but init 9's two in libero_spatial
+    assert!(stdout.contains("28 of 30 episodes equal in every dimension, 206 of 210 dimensions"), "{stdout}");
+    let first = read_csv(&out.join("compare_first_actions.csv"));
+    assert_eq!(first.len(), 1);
+    assert_eq!(
+        [&first[0]["n_episodes"], &first[0]["n_episodes_all_equal"], &first[0]["n_dims_equal"], &first[0]["n_dims"]],
+        ["30", "28", "206", "210"]
+    );
+    assert_eq!(f(&first[0], "max_abs_diff"), 1.0);
+    assert!((f(&first[0], "mean_abs_diff") - 2.5 / 210.0).abs() < 1e-12);
 
     let tasks = read_csv(&out.join("compare_by_task.csv"));
     assert_eq!(tasks.len(), 3);

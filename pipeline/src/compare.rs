@@ -7,11 +7,15 @@
 //! `pairs` view (`queries/compare_pairs.sql`), and `queries/compare.sql` /
 //! `queries/compare_by_task.sql` derive every number. Episodes of one run only are counted
 //! (`n_only_in_a`, `n_only_in_b`), never silently dropped.
+//!
+//! Beside the outcomes, the paired episodes' first actions (`queries/compare_first_actions.sql`):
+//! policy step 0 sees the same observation in both runs, so runs of one checkpoint computed two
+//! ways (quantised, on another device, batched) show there how far the two computations are apart.
 
 use crate::results::write_csv;
 use crate::session::{self, Scoring};
 use anyhow::{Context, Result};
-use arrow::array::{AsArray, RecordBatch};
+use arrow::array::{Array, AsArray, RecordBatch};
 use arrow::datatypes::Int64Type;
 use datafusion::datasource::MemTable;
 use datafusion::prelude::SessionContext;
@@ -36,9 +40,10 @@ pub fn run(args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(async {
         let ctx = SessionContext::new();
         libero_udfs::register_analysis_functions(&ctx);
-        for (table, location) in [("scored_a", &args.run_a), ("scored_b", &args.run_b)] {
-            let scored = scored_rows(location, &args.scoring).await?;
-            ctx.register_table(table, Arc::new(scored))?;
+        for (suffix, location) in [("a", &args.run_a), ("b", &args.run_b)] {
+            let (scored, first_actions) = run_rows(location, &args.scoring).await?;
+            ctx.register_table(format!("scored_{suffix}"), Arc::new(scored))?;
+            ctx.register_table(format!("first_actions_{suffix}"), Arc::new(first_actions))?;
         }
         session::queries::run(&ctx, session::queries::COMPARE_PAIRS).await?;
         let suites = session::queries::run(&ctx, session::queries::COMPARE).await?;
@@ -59,6 +64,8 @@ pub fn run(args: Args) -> Result<()> {
         std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
         write_csv(&args.out.join("compare.csv"), &suites)?;
         write_csv(&args.out.join("compare_by_task.csv"), &tasks)?;
+        let first_actions = session::queries::run(&ctx, session::queries::COMPARE_FIRST_ACTIONS).await?;
+        write_csv(&args.out.join("compare_first_actions.csv"), &first_actions)?;
         let policies = policy_names(&suites);
         println!("A = {} ({})\nB = {} ({})", args.run_a, policies.0, args.run_b, policies.1);
         println!(
@@ -72,19 +79,60 @@ pub fn run(args: Args) -> Result<()> {
                 all.n_only_in_a, all.n_only_in_b
             );
         }
-        println!("wrote {}/compare.csv and compare_by_task.csv", args.out.display());
+        if let Some(line) = first_actions_line(&first_actions) {
+            println!("{line}");
+        }
+        println!("wrote {}/compare.csv, compare_by_task.csv and compare_first_actions.csv", args.out.display());
         Ok(())
     })
 }
 
-/// A run's `scored` view (`queries/score.sql`) under the given definition, as an in-memory table
-/// (of this process: the paired comparison runs here, whichever engine scored the runs).
-async fn scored_rows(location: &str, scoring: &Scoring) -> Result<MemTable> {
+/// A run's `scored` view (`queries/score.sql`) under the given definition, and its episodes'
+/// first actions (`episode_key`, `action` at policy step 0), as in-memory tables (of this
+/// process: the paired comparison runs here, whichever engine read the runs).
+async fn run_rows(location: &str, scoring: &Scoring) -> Result<(MemTable, MemTable)> {
     let (run_ctx, _) = scoring.open_run(location).await.with_context(|| format!("opening run {location}"))?;
-    let scored = run_ctx.table("scored").await?;
-    let schema = Arc::new(scored.schema().as_arrow().clone());
-    let batches = scored.collect().await.with_context(|| format!("scoring run {location}"))?;
-    Ok(MemTable::try_new(schema, vec![batches])?)
+    let mut tables = Vec::new();
+    for (what, frame) in [
+        ("scoring", run_ctx.table("scored").await?),
+        (
+            "reading the first actions of",
+            run_ctx.sql("SELECT episode_key, action FROM steps WHERE policy_step = 0").await?,
+        ),
+    ] {
+        let schema = Arc::new(frame.schema().as_arrow().clone());
+        let batches = frame.collect().await.with_context(|| format!("{what} run {location}"))?;
+        tables.push(MemTable::try_new(schema, vec![batches])?);
+    }
+    let first_actions = tables.pop().expect("two tables");
+    Ok((tables.pop().expect("two tables"), first_actions))
+}
+
+/// `first actions (policy step 0, the same observation in both runs): 38 of 40 episodes equal in
+/// every dimension, 278 of 280 dimensions; largest |B − A| 0.0123, mean 0.0001`, from the one row
+/// of `queries/compare_first_actions.sql`; None without paired first actions.
+fn first_actions_line(batches: &[RecordBatch]) -> Option<String> {
+    let b = batches.iter().find(|b| b.num_rows() > 0)?;
+    let int = |name: &str| -> Option<i64> {
+        let c = arrow::compute::cast(b.column_by_name(name)?, &arrow::datatypes::DataType::Int64).ok()?;
+        Some(c.as_primitive::<Int64Type>().value(0))
+    };
+    let float = |name: &str| -> Option<f64> {
+        let c = arrow::compute::cast(b.column_by_name(name)?, &arrow::datatypes::DataType::Float64).ok()?;
+        let c = c.as_primitive::<arrow::datatypes::Float64Type>();
+        c.is_valid(0).then(|| c.value(0))
+    };
+    let (n, all_equal, dims_equal, dims): (i64, i64, i64, i64) =
+        (int("n_episodes")?, int("n_episodes_all_equal")?, int("n_dims_equal")?, int("n_dims")?);
+    if n == 0 {
+        return None;
+    }
+    Some(format!(
+        "first actions (policy step 0, the same observation in both runs): {all_equal} of {n} episodes equal in every \
+         dimension, {dims_equal} of {dims} dimensions; largest |B - A| {:.4}, mean {:.4}",
+        float("max_abs_diff")?,
+        float("mean_abs_diff")?
+    ))
 }
 
 /// The columns printed to the terminal (the CSV has them all).

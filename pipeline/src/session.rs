@@ -85,6 +85,7 @@ pub mod queries {
     pub const COMPARE_PAIRS: &str = "compare_pairs";
     pub const COMPARE: &str = "compare";
     pub const COMPARE_BY_TASK: &str = "compare_by_task";
+    pub const COMPARE_FIRST_ACTIONS: &str = "compare_first_actions";
     pub const SAMPLE_SIZE: &str = "sample_size";
     pub const FAILURE_MODES: &str = "failure_modes";
     pub const FAILURE_SUMMARY: &str = "failure_summary";
@@ -105,6 +106,7 @@ pub mod queries {
         (COMPARE_PAIRS, include_str!("../../queries/compare_pairs.sql")),
         (COMPARE, include_str!("../../queries/compare.sql")),
         (COMPARE_BY_TASK, include_str!("../../queries/compare_by_task.sql")),
+        (COMPARE_FIRST_ACTIONS, include_str!("../../queries/compare_first_actions.sql")),
         (SAMPLE_SIZE, include_str!("../../queries/sample_size.sql")),
         (FAILURE_MODES, include_str!("../../queries/failure_modes.sql")),
         (FAILURE_SUMMARY, include_str!("../../queries/failure_summary.sql")),

@@ -6,7 +6,18 @@
 //! ```
 //!
 //! `--attention` overrides the model's attention implementation (OpenVLA: eager, as its parity
-//! reference; OFT: SDPA, as openvla-oft loads it), to time the other one.
+//! reference; OFT: SDPA, as openvla-oft loads it), to time the other one. `--quant int8|int4`
+//! stores the linear layers quantised (`models::quant`); the bench then also prints the weights'
+//! resident size, and with `--agreement` the tokens of the quantised model against the same
+//! checkpoint in the model's dtype on the same inputs (loaded second, after the timings).
+//!
+//! **Serving** (`--serve WORKERS --devices cuda:0,cuda:1 --seconds S`, OpenVLA): the path a run
+//! takes, timed without the simulator: WORKERS threads, each a rollout worker's
+//! [`BatchedPolicy`] on the shared replicas (one per device, `batching::shared_replicas`), each
+//! preparing a 256² camera image with OpenVLA's preprocessing and asking for one action, episode
+//! after episode (an episode is `--episode-steps` actions); the actions per second over S seconds
+//! after a warm-up, and each replica's forwards. The same command with one device and with two
+//! gives the scaling over GPUs.
 //!
 //! One timed call is [`OpenVlaModel::predict_actions`] on B (image, instruction) pairs: the fused
 //! vision tower on B images, the prefill of B left-padded prompts (LIBERO instructions of different
@@ -23,9 +34,12 @@
 //! sequences and the L1 head, the 8 × 7 chunks read back. The full-size checkpoint is written by
 //! `scripts/reference/oft_bench.py`, which times the Python forward the same way.
 
+use libero_policies::batching::{BatchedPolicy, shared_replicas};
 use libero_policies::models::openvla::oft::{OftModel, OftQuery, PROPRIO_DIM};
-use libero_policies::models::openvla::{Attention, OpenVlaModel};
+use libero_policies::models::openvla::{Attention, OpenVlaBatchModel, OpenVlaModel};
+use libero_policies::placement::{ModelDevice, Quantization, parse_devices};
 use libero_policies::preprocess::RgbImage;
+use libero_policies::{CameraImage, CameraImages, Observation, Policy};
 use std::path::PathBuf;
 use std::time::Instant;
 use tch::{Device, Kind};
@@ -47,6 +61,12 @@ struct Args {
     warmup: usize,
     device: Device,
     json: Option<PathBuf>,
+    quant: Quantization,
+    agreement: bool,
+    serve: Option<usize>,
+    devices: Vec<ModelDevice>,
+    seconds: f64,
+    episode_steps: usize,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -59,6 +79,12 @@ fn parse_args() -> Result<Args, String> {
         warmup: 2,
         device: Device::cuda_if_available(),
         json: None,
+        quant: Quantization::None,
+        agreement: false,
+        serve: None,
+        devices: vec![ModelDevice::Cuda(0)],
+        seconds: 60.0,
+        episode_steps: 220,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -91,6 +117,14 @@ fn parse_args() -> Result<Args, String> {
                 }
             }
             "--json" => a.json = Some(value()?.into()),
+            "--quant" => a.quant = value()?.parse()?,
+            "--agreement" => a.agreement = true,
+            "--serve" => a.serve = Some(value()?.parse().map_err(|e| format!("--serve: {e}"))?),
+            "--devices" => a.devices = parse_devices(&value()?)?,
+            "--seconds" => a.seconds = value()?.parse().map_err(|e| format!("--seconds: {e}"))?,
+            "--episode-steps" => {
+                a.episode_steps = value()?.parse().ok().filter(|&n: &usize| n >= 1).ok_or("--episode-steps >= 1")?
+            }
             // cargo bench passes --bench to every bench binary
             "--bench" => {}
             other => return Err(format!("unknown argument {other:?}")),
@@ -280,6 +314,125 @@ impl FlopModel {
     }
 }
 
+/// The serving path's throughput (see the module doc): `workers` threads through the shared
+/// replicas on `args.devices`, `args.seconds` timed after a warm-up of a tenth of that.
+fn serve(args: &Args, dir: &std::path::Path, workers: usize) -> serde_json::Value {
+    let unnorm = libero_policies::models::openvla::OpenVlaConfig::load(dir)
+        .expect("config")
+        .norm_stats
+        .keys()
+        .into_iter()
+        .next();
+    let t0 = Instant::now();
+    let devices = args.devices.clone();
+    let replicas = shared_replicas("bench", devices.len(), |i| {
+        let model = OpenVlaBatchModel::load(dir, unnorm.clone(), Some(devices[i]), args.quant)?;
+        Ok((model, workers, std::time::Duration::from_millis(20)))
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    let load_s = t0.elapsed().as_secs_f64();
+    println!(
+        "openvla serve: {} replica(s) on {:?}, {:?} weights, loaded in {load_s:.1} s",
+        devices.len(),
+        devices,
+        args.quant
+    );
+    let warmup = std::time::Duration::from_secs_f64(args.seconds / 10.0);
+    let timed = std::time::Duration::from_secs_f64(args.seconds);
+    let start = Instant::now() + warmup;
+    let end = start + timed;
+    let counts: Vec<usize> = std::thread::scope(|scope| {
+        let threads: Vec<_> = (0..workers)
+            .map(|w| {
+                let replicas = replicas.clone();
+                let steps = args.episode_steps;
+                scope.spawn(move || {
+                    let image = random_images(1, 256, 1000 + w as u64).remove(0);
+                    let camera = CameraImage { width: 256, height: 256, rgb: image.rgb.clone() };
+                    let obs = Observation {
+                        images: Some(CameraImages { agentview: camera, wrist: CameraImage::default() }),
+                        ..Default::default()
+                    };
+                    let mut policy = BatchedPolicy::on_replicas(replicas, "openvla");
+                    let mut counted = 0;
+                    'episodes: for episode in 0.. {
+                        policy.reset(INSTRUCTIONS[(w + episode) % INSTRUCTIONS.len()], episode as u64);
+                        for _ in 0..steps {
+                            policy.act(&obs).unwrap_or_else(|e| panic!("{e}"));
+                            let now = Instant::now();
+                            if now >= end {
+                                break 'episodes;
+                            }
+                            if now >= start {
+                                counted += 1;
+                            }
+                        }
+                        policy.end_episode();
+                    }
+                    policy.end_episode();
+                    counted
+                })
+            })
+            .collect();
+        threads.into_iter().map(|t| t.join().expect("worker")).collect()
+    });
+    let actions: usize = counts.iter().sum();
+    let per_s = actions as f64 / args.seconds;
+    let stats = replicas.stats();
+    let replica_rows: Vec<serde_json::Value> = stats
+        .iter()
+        .zip(&devices)
+        .map(|(s, d)| serde_json::json!({"device": d.to_string(), "forwards": s.batches.len(), "summary": s.summary()}))
+        .collect();
+    println!("  {workers} workers: {actions} actions in {:.0} s = {per_s:.1} actions/s", args.seconds);
+    for r in &replica_rows {
+        println!("  {}: {}", r["device"], r["summary"]);
+    }
+    serde_json::json!({
+        "mode": "serve", "workers": workers, "devices": devices.iter().map(|d| d.to_string()).collect::<Vec<_>>(),
+        "quant": args.quant.to_string(), "seconds": args.seconds, "episode_steps": args.episode_steps,
+        "load_s": load_s, "actions": actions, "actions_per_s": per_s, "replicas": replica_rows,
+    })
+}
+
+/// The action tokens of `quantized` against the same checkpoint in `kind`, loaded now, on
+/// `images` with every instruction: how many of the 7 tokens are equal, and the first step's
+/// logits' largest difference against their range.
+fn token_agreement(
+    quantized: &OpenVlaModel,
+    dir: &std::path::Path,
+    device: Device,
+    kind: Kind,
+    unnorm: Option<&str>,
+    images: &[RgbImage],
+) -> serde_json::Value {
+    let reference = OpenVlaModel::load_on(dir, device, kind).unwrap_or_else(|e| panic!("{e}"));
+    let queries: Vec<(&RgbImage, &str)> =
+        images.iter().enumerate().map(|(i, im)| (im, INSTRUCTIONS[i % INSTRUCTIONS.len()])).collect();
+    let (mut equal, mut total, mut all_equal, mut max_diff, mut range) = (0, 0, 0, 0f64, 0f64);
+    for chunk in queries.chunks(8) {
+        let ours = quantized.predict_actions(chunk, unnorm).unwrap_or_else(|e| panic!("{e}"));
+        let theirs = reference.predict_actions(chunk, unnorm).unwrap_or_else(|e| panic!("{e}"));
+        for (q, r) in ours.iter().zip(&theirs) {
+            let same = q.tokens.iter().zip(&r.tokens).filter(|(a, b)| a == b).count();
+            equal += same;
+            total += r.tokens.len();
+            all_equal += usize::from(same == r.tokens.len());
+            let first = |p: &libero_policies::models::openvla::OpenVlaPrediction| {
+                p.step_logits.get(0).to_device(Device::Cpu).to_kind(Kind::Double)
+            };
+            max_diff = max_diff.max((first(q) - first(r)).abs().max().double_value(&[]));
+            range = range.max(first(r).abs().max().double_value(&[]));
+        }
+    }
+    let summary = serde_json::json!({
+        "inputs": queries.len(), "tokens_equal": equal, "tokens": total, "actions_all_equal": all_equal,
+        "first_step_logits_max_abs_diff": max_diff, "first_step_logits_range": range,
+    });
+    println!("  tokens vs the unquantised model on {} inputs: {summary}", queries.len());
+    summary
+}
+
 fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
 }
@@ -300,31 +453,46 @@ fn main() {
         eprintln!("openvla bench: --device cuda, but libtorch sees no CUDA device (is libtorch_cuda.so loaded?)");
         std::process::exit(2);
     }
+    if let Some(workers) = args.serve {
+        let report = serve(&args, &dir, workers);
+        if let Some(out) = &args.json {
+            std::fs::write(out, serde_json::to_string_pretty(&report).expect("json")).expect("write --json");
+        }
+        return;
+    }
     let kind = if args.device.is_cuda() { Kind::BFloat16 } else { Kind::Float };
     let t0 = Instant::now();
     let (openvla, oft) = if args.oft {
-        let mut m = OftModel::load_on(&dir, args.device, kind).unwrap_or_else(|e| panic!("{e}"));
+        let mut m = OftModel::load_quantized(&dir, args.device, kind, args.quant).unwrap_or_else(|e| panic!("{e}"));
         if let Some(a) = args.attention {
             m.set_attention(a);
         }
         (None, Some(m))
     } else {
-        let mut m = OpenVlaModel::load_on(&dir, args.device, kind).unwrap_or_else(|e| panic!("{e}"));
+        let mut m = OpenVlaModel::load_quantized(&dir, args.device, kind, args.quant).unwrap_or_else(|e| panic!("{e}"));
         if let Some(a) = args.attention {
             m.set_attention(a);
         }
         (Some(m), None)
     };
     let load_s = t0.elapsed().as_secs_f64();
+    let tinygemm_check = (args.quant == Quantization::Int4 && args.device.is_cuda()).then(|| {
+        let worst = libero_policies::models::quant::tinygemm_self_check(args.device);
+        println!(
+            "  int4: tinygemm's product vs the dequantised weight's (1, 8, 64 rows): max |d| / max |y| = {worst:.2e}"
+        );
+        worst
+    });
     let config = openvla.as_ref().map(|m| m.config()).or(oft.as_ref().map(|m| m.config())).expect("a model");
     let unnorm = config.norm_stats.keys().into_iter().next();
     let size = config.backbones[0].image_size as u32;
     let what = if args.oft { "openvla-oft" } else { "openvla" };
     let attention = openvla.as_ref().map(|m| m.attention()).or(oft.as_ref().map(|m| m.attention())).expect("a model");
     println!(
-        "{what} bench: {} on {:?} in {kind:?}, {attention:?} attention; loaded in {load_s:.1} s",
+        "{what} bench: {} on {:?} in {kind:?}, {attention:?} attention, {:?} weights; loaded in {load_s:.1} s",
         dir.display(),
-        args.device
+        args.device,
+        args.quant
     );
     let agreement = match (&openvla, &oft) {
         (Some(m), _) => compare_with_reference(m, &dir, unnorm.as_deref()),
@@ -398,11 +566,17 @@ fn main() {
         );
         rows.push(row);
     }
+    // after the timings: the unquantised model then shares the device
+    let quant_agreement = match (&openvla, args.agreement && args.quant != Quantization::None) {
+        (Some(m), true) => token_agreement(m, &dir, args.device, kind, unnorm.as_deref(), &random_images(32, size, 7)),
+        _ => serde_json::Value::Null,
+    };
     if let Some(out) = &args.json {
         let report = serde_json::json!({
             "implementation": "rust (tch, libtorch)", "model": what, "attention": format!("{attention:?}"), "checkpoint": dir.display().to_string(),
-            "device": format!("{:?}", args.device), "dtype": format!("{kind:?}"), "load_s": load_s,
-            "reference_agreement": agreement, "results": rows,
+            "device": format!("{:?}", args.device), "dtype": format!("{kind:?}"), "quant": args.quant.to_string(),
+            "load_s": load_s, "reference_agreement": agreement, "quant_agreement": quant_agreement,
+            "tinygemm_vs_dequantised": tinygemm_check, "results": rows,
         });
         std::fs::write(out, serde_json::to_string_pretty(&report).expect("json")).expect("write --json");
     }

@@ -5,12 +5,17 @@
 # layout of OpenVLA-7B (scripts/reference/openvla_layout.py; the weights are drawn there) and the
 # GL libraries (glvnd's EGL dispatcher) as Debian packages.
 #
+# With the bench binary of policies/benches/openvla.rs when it is built (`cargo bench -p
+# libero-policies --bench openvla --no-run`): scripts/bench/gpu_scaling.sh runs it.
+#
 # usage: scripts/bench/gpu_carry.sh CARRY   (after cargo build --release and ./setup.sh)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 carry=$(realpath -m "$1"); mkdir -p "$carry/lib" "$carry/gl"
 target=${CARGO_TARGET_DIR:-target}
 strip -o "$carry/pipeline" "$target/release/pipeline"; xz -T0 -9 -f "$carry/pipeline"
+bench=$(ls -t "$target"/release/deps/openvla-* 2>/dev/null | grep -v '\.d$' | head -1 || true)
+if [ -n "$bench" ]; then strip -o "$carry/openvla-bench" "$bench"; xz -T0 -9 -f "$carry/openvla-bench"; fi
 cp -L third_party/mujoco-3.3.7/lib/libmujoco.so.3.3.7 "$carry/lib/"
 bundles=$(realpath data/bundles)
 # every file the suite's provenance hashes, and the folders a relative asset path walks through

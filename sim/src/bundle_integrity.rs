@@ -57,7 +57,7 @@ fn verify_task(root: &Path, bundle: &TaskBundle, assets_checked: &mut BTreeSet<P
 }
 
 /// Hash a file in chunks (assets reach 20 MB; reading them whole would grow the heap for nothing).
-fn check_file(path: &Path, expected: &str) -> Result<(), SimError> {
+pub(crate) fn check_file(path: &Path, expected: &str) -> Result<(), SimError> {
     let unreadable = |e: std::io::Error| damaged(path, &format!("cannot read it: {e}"));
     let mut file = std::fs::File::open(path).map_err(unreadable)?;
     let mut h = Sha256::new();

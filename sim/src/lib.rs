@@ -13,7 +13,9 @@
 //! - [`env`]: the gym-shaped [`env::LiberoEnv`] tying them together at 20 Hz (25 substeps of 2 ms);
 //! - [`viewpoint`]: LIBERO-Plus camera viewpoints (the `agentview` pose of a view variant);
 //! - [`gl`] and [`render`]: headless EGL contexts and camera frames rendered as the reference renders
-//!   them (orientation conventions, the published stack's look, a clearly named preview mode).
+//!   them (orientation conventions, the published stack's look, a clearly named preview mode);
+//! - [`aloha`]: a second benchmark, ALOHA-sim (gym-aloha's bimanual tasks), on the same MuJoCo and
+//!   renderer.
 //!
 //! It knows nothing of policies, Arrow or DataFusion.
 //!
@@ -28,6 +30,7 @@
 //! # Ok::<(), libero_sim::SimError>(())
 //! ```
 
+pub mod aloha;
 pub mod bundle;
 pub mod bundle_integrity;
 pub mod dark_noise;

@@ -1,7 +1,8 @@
-//! A reader for the one NumPy format the bundles use: a C-ordered little-endian float64 2-D array.
+//! A reader for the NumPy formats the bundles use: C-ordered little-endian float64 and float32
+//! 2-D arrays, and uint8 arrays of any shape (camera frames).
 //!
-//! The exporter writes `init_states.npy` with `np.save`, which notebooks read directly; a full
-//! `.npy` crate would add a dependency for ~30 lines.
+//! The exporters write `init_states.npy` (and the ALOHA-sim reference episodes) with `np.save`,
+//! which notebooks read directly; a full `.npy` crate would add a dependency for ~50 lines.
 
 use std::path::Path;
 
@@ -26,6 +27,33 @@ pub fn read_f64_2d(path: &Path) -> Result<Array2, String> {
 }
 
 pub fn parse_f64_2d(bytes: &[u8]) -> Result<Array2, String> {
+    let (shape, body) = parse(bytes, "<f8")?;
+    let [rows, cols] = shape[..] else {
+        return Err(format!("expected a 2-D array, shape is {shape:?}"));
+    };
+    let data = body.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap())).collect();
+    Ok(Array2 { rows, cols, data })
+}
+
+/// Read a `<f4`, C-order, 2-D `.npy` file: `(rows, cols, values)` (actions as policies send them).
+pub fn read_f32_2d(path: &Path) -> Result<(usize, usize, Vec<f32>), String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let (shape, body) = parse(&bytes, "<f4")?;
+    let [rows, cols] = shape[..] else {
+        return Err(format!("expected a 2-D array, shape is {shape:?}"));
+    };
+    Ok((rows, cols, body.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect()))
+}
+
+/// Read a `|u1` (uint8), C-order `.npy` file of any shape: `(shape, bytes)` (camera frames).
+pub fn read_u8(path: &Path) -> Result<(Vec<usize>, Vec<u8>), String> {
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let (shape, body) = parse(&bytes, "|u1")?;
+    Ok((shape, body.to_vec()))
+}
+
+/// The shape and data bytes of a C-ordered `.npy` file whose dtype is `descr`.
+fn parse<'a>(bytes: &'a [u8], descr: &str) -> Result<(Vec<usize>, &'a [u8]), String> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err("not a .npy file (bad magic)".into());
     }
@@ -41,8 +69,8 @@ pub fn parse_f64_2d(bytes: &[u8]) -> Result<Array2, String> {
     };
     let header = std::str::from_utf8(bytes.get(start..start + header_len).ok_or("truncated .npy header")?)
         .map_err(|_| "non-UTF-8 .npy header")?;
-    if !header.contains("'descr': '<f8'") {
-        return Err(format!("expected float64 ('<f8') data, header is {header}"));
+    if !header.contains(&format!("'descr': '{descr}'")) {
+        return Err(format!("expected {descr} data, header is {header}"));
     }
     if header.contains("'fortran_order': True") {
         return Err("expected C-ordered data".into());
@@ -58,15 +86,13 @@ pub fn parse_f64_2d(bytes: &[u8]) -> Result<Array2, String> {
         .filter(|s| !s.is_empty())
         .map(|s| s.parse::<usize>().map_err(|e| format!("bad shape {shape}: {e}")))
         .collect::<Result<_, _>>()?;
-    let [rows, cols] = dims[..] else {
-        return Err(format!("expected a 2-D array, shape is ({shape})"));
-    };
     let body = &bytes[start + header_len..];
-    if body.len() != rows * cols * 8 {
-        return Err(format!("data has {} bytes, shape ({rows}, {cols}) needs {}", body.len(), rows * cols * 8));
+    let item = descr[2..].parse::<usize>().map_err(|_| format!("unsupported dtype {descr}"))?;
+    let need = dims.iter().product::<usize>() * item;
+    if body.len() != need {
+        return Err(format!("data has {} bytes, shape ({shape}) needs {need}", body.len()));
     }
-    let data = body.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap())).collect();
-    Ok(Array2 { rows, cols, data })
+    Ok((dims, body))
 }
 
 #[cfg(test)]

@@ -278,6 +278,13 @@ impl SceneRenderer {
         self.options
     }
 
+    /// Show or hide the geoms of `group` (0–5). The renderer starts with robosuite's choice
+    /// (group 0, the collision meshes, hidden); dm_control's envs (ALOHA-sim) render with
+    /// MuJoCo's default `mjvOption`, groups 0–2 shown.
+    pub fn set_geom_group(&mut self, group: usize, shown: bool) {
+        self.opt.geomgroup[group] = shown as u8;
+    }
+
     /// The scene's camera names, in model order.
     pub fn cameras(&self) -> &[String] {
         &self.cameras

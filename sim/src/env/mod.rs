@@ -46,8 +46,9 @@ pub enum StepMode {
 }
 
 /// A pointer to the env's boxed model, so `MjData` can borrow it while the env can still edit
-/// fixture poses between episodes. The box outlives the data (field order in [`LiberoEnv`]).
-struct ModelPtr(*const MjModel);
+/// fixture poses between episodes. The box outlives the data (field order in [`LiberoEnv`];
+/// [`crate::aloha::AlohaEnv`] holds its model the same way, to hand it to a renderer).
+pub(crate) struct ModelPtr(pub(crate) *const MjModel);
 impl Deref for ModelPtr {
     type Target = MjModel;
     fn deref(&self) -> &MjModel {

@@ -34,9 +34,9 @@ fn check_unnorm_key(config: &super::OpenVlaConfig, unnorm_key: Option<&str>) -> 
 }
 
 impl OpenVlaPolicy {
-    /// Load the checkpoint directory; a wrong or missing `unnorm_key` fails here, listing the keys
-    /// the checkpoint has.
-    /// On `device` (the first GPU, else the CPU, for `None`), its linear layers stored as `quant` says.
+    /// Load the checkpoint directory on `device` (the first GPU, else the CPU, for `None`), its
+    /// linear layers stored as `quant` says; a wrong or missing `unnorm_key` fails here, listing
+    /// the keys the checkpoint has.
     pub fn load(
         dir: &Path,
         unnorm_key: Option<String>,

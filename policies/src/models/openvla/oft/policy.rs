@@ -75,9 +75,9 @@ pub struct OftPolicy {
 }
 
 impl OftPolicy {
-    /// Load the checkpoint directory; a missing head file or a wrong `unnorm_key` fails here.
-    /// On `device` (the first GPU, else the CPU, for `None`), the backbone's linear layers stored
-    /// as `quant` says.
+    /// Load the checkpoint directory on `device` (the first GPU, else the CPU, for `None`), the
+    /// backbone's linear layers stored as `quant` says; a missing head file or a wrong
+    /// `unnorm_key` fails here.
     pub fn load(
         dir: &Path,
         unnorm_key: Option<String>,

@@ -10,6 +10,10 @@
 //! stores the linear layers quantised (`models::quant`); the bench then also prints the weights'
 //! resident size, and with `--agreement` the tokens of the quantised model against the same
 //! checkpoint in the model's dtype on the same inputs (loaded second, after the timings).
+//! `--fusion SETS` times the language model with each of the `/`-separated launch-saving kernel
+//! sets (`Fusion`: `none`, `all`, or parts joined by `+`: `norm+qkv`) in turn, the model loaded
+//! once (default: its own, all on CUDA); for each set but `none` it also reports the tokens and
+//! first-step logits against `none` (transformers' operations one by one) on 32 random inputs.
 //!
 //! **Serving** (`--serve WORKERS --devices cuda:0,cuda:1 --seconds S`, OpenVLA): the path a run
 //! takes, timed without the simulator: WORKERS threads, each a rollout worker's
@@ -36,7 +40,7 @@
 
 use libero_policies::batching::{BatchedPolicy, shared_replicas};
 use libero_policies::models::openvla::oft::{OftModel, OftQuery, PROPRIO_DIM};
-use libero_policies::models::openvla::{Attention, OpenVlaBatchModel, OpenVlaModel};
+use libero_policies::models::openvla::{Attention, Fusion, OpenVlaBatchModel, OpenVlaModel};
 use libero_policies::placement::{ModelDevice, Quantization, parse_devices};
 use libero_policies::preprocess::RgbImage;
 use libero_policies::{CameraImage, CameraImages, Observation, Policy};
@@ -64,6 +68,7 @@ struct Args {
     quant: Quantization,
     agreement: bool,
     serve: Option<usize>,
+    fusions: Vec<Fusion>,
     devices: Vec<ModelDevice>,
     seconds: f64,
     episode_steps: usize,
@@ -82,6 +87,7 @@ fn parse_args() -> Result<Args, String> {
         quant: Quantization::None,
         agreement: false,
         serve: None,
+        fusions: vec![],
         devices: vec![ModelDevice::Cuda(0)],
         seconds: 60.0,
         episode_steps: 220,
@@ -119,6 +125,9 @@ fn parse_args() -> Result<Args, String> {
             "--json" => a.json = Some(value()?.into()),
             "--quant" => a.quant = value()?.parse()?,
             "--agreement" => a.agreement = true,
+            "--fusion" => {
+                a.fusions = value()?.split('/').map(str::parse).collect::<Result<_, _>>().map_err(|e| format!("--fusion: {e}"))?
+            }
             "--serve" => a.serve = Some(value()?.parse().map_err(|e| format!("--serve: {e}"))?),
             "--devices" => a.devices = parse_devices(&value()?)?,
             "--seconds" => a.seconds = value()?.parse().map_err(|e| format!("--seconds: {e}"))?,
@@ -407,30 +416,54 @@ fn token_agreement(
     images: &[RgbImage],
 ) -> serde_json::Value {
     let reference = OpenVlaModel::load_on(dir, device, kind).unwrap_or_else(|e| panic!("{e}"));
-    let queries: Vec<(&RgbImage, &str)> =
-        images.iter().enumerate().map(|(i, im)| (im, INSTRUCTIONS[i % INSTRUCTIONS.len()])).collect();
-    let (mut equal, mut total, mut all_equal, mut max_diff, mut range) = (0, 0, 0, 0f64, 0f64);
-    for chunk in queries.chunks(8) {
-        let ours = quantized.predict_actions(chunk, unnorm).unwrap_or_else(|e| panic!("{e}"));
-        let theirs = reference.predict_actions(chunk, unnorm).unwrap_or_else(|e| panic!("{e}"));
-        for (q, r) in ours.iter().zip(&theirs) {
-            let same = q.tokens.iter().zip(&r.tokens).filter(|(a, b)| a == b).count();
-            equal += same;
-            total += r.tokens.len();
-            all_equal += usize::from(same == r.tokens.len());
-            let first = |p: &libero_policies::models::openvla::OpenVlaPrediction| {
-                p.step_logits.get(0).to_device(Device::Cpu).to_kind(Kind::Double)
-            };
-            max_diff = max_diff.max((first(q) - first(r)).abs().max().double_value(&[]));
-            range = range.max(first(r).abs().max().double_value(&[]));
-        }
-    }
-    let summary = serde_json::json!({
-        "inputs": queries.len(), "tokens_equal": equal, "tokens": total, "actions_all_equal": all_equal,
-        "first_step_logits_max_abs_diff": max_diff, "first_step_logits_range": range,
-    });
+    let queries = queries_of(images);
+    let summary =
+        agreement(&predict_all(quantized, &queries, unnorm), &predict_all(&reference, &queries, unnorm));
     println!("  tokens vs the unquantised model on {} inputs: {summary}", queries.len());
     summary
+}
+
+/// `fusion` against transformers' operations one by one (`Fusion::NONE`), on the same model and
+/// inputs: the tokens and first-step logits of both.
+fn fusion_agreement(model: &mut OpenVlaModel, fusion: Fusion, unnorm: Option<&str>, images: &[RgbImage]) -> serde_json::Value {
+    let (queries, before) = (queries_of(images), model.fusion());
+    model.set_fusion(fusion);
+    let fused = predict_all(model, &queries, unnorm);
+    model.set_fusion(Fusion::NONE);
+    let plain = predict_all(model, &queries, unnorm);
+    model.set_fusion(before);
+    let summary = agreement(&fused, &plain);
+    println!("  fusion {fusion} vs none on {} inputs: {summary}", queries.len());
+    summary
+}
+
+fn queries_of(images: &[RgbImage]) -> Vec<(&RgbImage, &'static str)> {
+    images.iter().enumerate().map(|(i, im)| (im, INSTRUCTIONS[i % INSTRUCTIONS.len()])).collect()
+}
+
+type Prediction = libero_policies::models::openvla::OpenVlaPrediction;
+
+fn predict_all(model: &OpenVlaModel, queries: &[(&RgbImage, &str)], unnorm: Option<&str>) -> Vec<Prediction> {
+    queries.chunks(8).flat_map(|chunk| model.predict_actions(chunk, unnorm).unwrap_or_else(|e| panic!("{e}"))).collect()
+}
+
+/// Tokens equal (all and per action) and the largest first-step logit difference of `ours`
+/// against `theirs`, the same queries in the same order.
+fn agreement(ours: &[Prediction], theirs: &[Prediction]) -> serde_json::Value {
+    let (mut equal, mut total, mut all_equal, mut max_diff, mut range) = (0, 0, 0, 0f64, 0f64);
+    for (q, r) in ours.iter().zip(theirs) {
+        let same = q.tokens.iter().zip(&r.tokens).filter(|(a, b)| a == b).count();
+        equal += same;
+        total += r.tokens.len();
+        all_equal += usize::from(same == r.tokens.len());
+        let first = |p: &Prediction| p.step_logits.get(0).to_device(Device::Cpu).to_kind(Kind::Double);
+        max_diff = max_diff.max((first(q) - first(r)).abs().max().double_value(&[]));
+        range = range.max(first(r).abs().max().double_value(&[]));
+    }
+    serde_json::json!({
+        "inputs": theirs.len(), "tokens_equal": equal, "tokens": total, "actions_all_equal": all_equal,
+        "first_step_logits_max_abs_diff": max_diff, "first_step_logits_range": range,
+    })
 }
 
 fn percentile(sorted: &[f64], q: f64) -> f64 {
@@ -462,7 +495,7 @@ fn main() {
     }
     let kind = if args.device.is_cuda() { Kind::BFloat16 } else { Kind::Float };
     let t0 = Instant::now();
-    let (openvla, oft) = if args.oft {
+    let (mut openvla, mut oft) = if args.oft {
         let mut m = OftModel::load_quantized(&dir, args.device, kind, args.quant).unwrap_or_else(|e| panic!("{e}"));
         if let Some(a) = args.attention {
             m.set_attention(a);
@@ -488,13 +521,14 @@ fn main() {
     let size = config.backbones[0].image_size as u32;
     let what = if args.oft { "openvla-oft" } else { "openvla" };
     let attention = openvla.as_ref().map(|m| m.attention()).or(oft.as_ref().map(|m| m.attention())).expect("a model");
+    let default_fusion = openvla.as_ref().map(|m| m.fusion()).or(oft.as_ref().map(|m| m.fusion())).expect("a model");
     println!(
         "{what} bench: {} on {:?} in {kind:?}, {attention:?} attention, {:?} weights; loaded in {load_s:.1} s",
         dir.display(),
         args.device,
         args.quant
     );
-    let agreement = match (&openvla, &oft) {
+    let reference_agreement = match (&openvla, &oft) {
         (Some(m), _) => compare_with_reference(m, &dir, unnorm.as_deref()),
         (_, Some(m)) => compare_oft_with_reference(m, &dir, unnorm.as_deref()),
         _ => unreachable!(),
@@ -502,69 +536,100 @@ fn main() {
     // what one query returns: an action, or OFT's chunk of 8
     let actions_per_query = if args.oft { 8 } else { 1 };
     let flop_model = FlopModel::new(&dir, config);
-    let input_ids = |i: usize| match (&openvla, &oft) {
-        (Some(m), _) => m.input_ids(INSTRUCTIONS[i % INSTRUCTIONS.len()]).expect("prompt").len(),
-        (_, Some(m)) => m.input_ids(INSTRUCTIONS[i % INSTRUCTIONS.len()]).expect("prompt").len(),
-        _ => unreachable!(),
-    };
-    let mut rows = Vec::new();
-    for &b in &args.batches {
-        let images = random_images(2 * b, size, b as u64);
-        let instruction = |i: usize| INSTRUCTIONS[i % INSTRUCTIONS.len()];
-        let call: Box<dyn Fn() -> usize + '_> = match (&openvla, &oft) {
-            (Some(m), _) => {
-                let queries: Vec<(&RgbImage, &str)> = (0..b).map(|i| (&images[i], instruction(i))).collect();
-                let unnorm = unnorm.clone();
-                Box::new(move || m.predict_actions(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}")).len())
-            }
-            (_, Some(m)) => {
-                let queries: Vec<OftQuery> = (0..b)
-                    .map(|i| OftQuery {
-                        primary: &images[2 * i],
-                        wrist: &images[2 * i + 1],
-                        state: std::array::from_fn(|d| 0.01 * (i + d) as f64),
-                        instruction: instruction(i),
-                    })
-                    .collect();
-                let unnorm = unnorm.clone();
-                Box::new(move || m.predict_chunks(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}")).len())
-            }
+    let prompt_lens_per_instruction: Vec<usize> = (0..INSTRUCTIONS.len())
+        .map(|i| match (&openvla, &oft) {
+            (Some(m), _) => m.input_ids(INSTRUCTIONS[i % INSTRUCTIONS.len()]).expect("prompt").len(),
+            (_, Some(m)) => m.input_ids(INSTRUCTIONS[i % INSTRUCTIONS.len()]).expect("prompt").len(),
             _ => unreachable!(),
-        };
-        let mut times = Vec::new();
-        for i in 0..args.warmup + args.iters {
-            let t = Instant::now();
-            let answered = call();
-            let s = t.elapsed().as_secs_f64();
-            assert_eq!(answered, b);
-            if i >= args.warmup {
-                times.push(s);
-            }
+        })
+        .collect();
+    let mut rows = Vec::new();
+    let mut fusion_agreements = Vec::new();
+    let fusions = if args.fusions.is_empty() { vec![default_fusion] } else { args.fusions.clone() };
+    for &fusion in &fusions {
+        if let Some(m) = openvla.as_mut() {
+            m.set_fusion(fusion);
         }
-        times.sort_by(f64::total_cmp);
-        let median = percentile(&times, 0.5);
-        let actions = (b * actions_per_query) as f64;
-        let prompt_lens: Vec<usize> = (0..b).map(input_ids).collect();
-        let flops = if args.oft { flop_model.oft(&prompt_lens) } else { flop_model.openvla(&prompt_lens, 7) };
-        let tflops = flops / median / 1e12;
-        let row = serde_json::json!({
-            "batch": b, "iters": times.len(),
-            "call_ms_median": median * 1e3, "call_ms_p90": percentile(&times, 0.9) * 1e3,
-            "call_ms_min": times[0] * 1e3,
-            "ms_per_query": median * 1e3 / b as f64, "actions_per_s": actions / median,
-            "tflop_per_call": flops / 1e12, "tflop_per_s": tflops, "fraction_of_peak": tflops / PEAK_TFLOPS,
-        });
-        println!(
-            "  B={b:>3}: {:>8.1} ms per call (p90 {:.1}), {:>7.2} ms per query, {:>7.1} actions/s ({actions_per_query} per \
-             query); {:.1} GFLOP per call, {tflops:.1} TFLOP/s = {:.1}% of {PEAK_TFLOPS}",
-            median * 1e3,
-            percentile(&times, 0.9) * 1e3,
-            median * 1e3 / b as f64,
-            actions / median,
-            flops / 1e9,
-            100.0 * tflops / PEAK_TFLOPS
-        );
-        rows.push(row);
+        if let Some(m) = oft.as_mut() {
+            m.set_fusion(fusion);
+        }
+        println!("  fusion {fusion}:");
+        for &b in &args.batches {
+            let images = random_images(2 * b, size, b as u64);
+            let instruction = |i: usize| INSTRUCTIONS[i % INSTRUCTIONS.len()];
+            let call: Box<dyn Fn() -> usize + '_> = match (&openvla, &oft) {
+                (Some(m), _) => {
+                    let queries: Vec<(&RgbImage, &str)> = (0..b).map(|i| (&images[i], instruction(i))).collect();
+                    let unnorm = unnorm.clone();
+                    Box::new(move || m.predict_actions(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}")).len())
+                }
+                (_, Some(m)) => {
+                    let queries: Vec<OftQuery> = (0..b)
+                        .map(|i| OftQuery {
+                            primary: &images[2 * i],
+                            wrist: &images[2 * i + 1],
+                            state: std::array::from_fn(|d| 0.01 * (i + d) as f64),
+                            instruction: instruction(i),
+                        })
+                        .collect();
+                    let unnorm = unnorm.clone();
+                    Box::new(move || m.predict_chunks(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}")).len())
+                }
+                _ => unreachable!(),
+            };
+            let mut times = Vec::new();
+            for i in 0..args.warmup + args.iters {
+                let t = Instant::now();
+                let answered = call();
+                let s = t.elapsed().as_secs_f64();
+                assert_eq!(answered, b);
+                if i >= args.warmup {
+                    times.push(s);
+                }
+            }
+            times.sort_by(f64::total_cmp);
+            let median = percentile(&times, 0.5);
+            let actions = (b * actions_per_query) as f64;
+            let prompt_lens: Vec<usize> = (0..b).map(|i| prompt_lens_per_instruction[i % INSTRUCTIONS.len()]).collect();
+            let flops = if args.oft { flop_model.oft(&prompt_lens) } else { flop_model.openvla(&prompt_lens, 7) };
+            let tflops = flops / median / 1e12;
+            let row = serde_json::json!({
+                "fusion": fusion.to_string(), "batch": b, "iters": times.len(),
+                "call_ms_median": median * 1e3, "call_ms_p90": percentile(&times, 0.9) * 1e3,
+                "call_ms_min": times[0] * 1e3,
+                "ms_per_query": median * 1e3 / b as f64, "actions_per_s": actions / median,
+                "tflop_per_call": flops / 1e12, "tflop_per_s": tflops, "fraction_of_peak": tflops / PEAK_TFLOPS,
+            });
+            println!(
+                "  B={b:>3}: {:>8.1} ms per call (p90 {:.1}), {:>7.2} ms per query, {:>7.1} actions/s ({actions_per_query} per \
+                 query); {:.1} GFLOP per call, {tflops:.1} TFLOP/s = {:.1}% of {PEAK_TFLOPS}",
+                median * 1e3,
+                percentile(&times, 0.9) * 1e3,
+                median * 1e3 / b as f64,
+                actions / median,
+                flops / 1e9,
+                100.0 * tflops / PEAK_TFLOPS
+            );
+            rows.push(row);
+        }
+        // against transformers' operations one by one (OpenVLA on CUDA); for `none`, the same
+        // operations in batches of 8 against each query alone: how far bf16 rounding alone moves
+        // this checkpoint's tokens (its noise floor)
+        // (only when asked: the memory of a B = 1 run must be B = 1's)
+        if let Some(m) = openvla.as_mut().filter(|_| args.device.is_cuda() && !args.fusions.is_empty()) {
+            let images = random_images(32, size, 11);
+            let summary = if fusion == Fusion::NONE {
+                let queries = queries_of(&images);
+                let alone: Vec<Prediction> =
+                    queries.iter().flat_map(|q| predict_all(m, std::slice::from_ref(q), unnorm.as_deref())).collect();
+                let s = agreement(&predict_all(m, &queries, unnorm.as_deref()), &alone);
+                println!("  none, batches of 8 vs each query alone on {} inputs (the noise floor): {s}", queries.len());
+                s
+            } else {
+                fusion_agreement(m, fusion, unnorm.as_deref(), &images)
+            };
+            fusion_agreements.push(serde_json::json!({"fusion": fusion.to_string(), "agreement": summary}));
+        }
     }
     // after the timings: the unquantised model then shares the device
     let quant_agreement = match (&openvla, args.agreement && args.quant != Quantization::None) {
@@ -575,7 +640,8 @@ fn main() {
         let report = serde_json::json!({
             "implementation": "rust (tch, libtorch)", "model": what, "attention": format!("{attention:?}"), "checkpoint": dir.display().to_string(),
             "device": format!("{:?}", args.device), "dtype": format!("{kind:?}"), "quant": args.quant.to_string(),
-            "load_s": load_s, "reference_agreement": agreement, "quant_agreement": quant_agreement,
+            "load_s": load_s, "reference_agreement": reference_agreement, "quant_agreement": quant_agreement,
+            "fusion_agreement": fusion_agreements,
             "tinygemm_vs_dequantised": tinygemm_check, "results": rows,
         });
         std::fs::write(out, serde_json::to_string_pretty(&report).expect("json")).expect("write --json");

@@ -10,7 +10,7 @@
 //! Needs the venv of `scripts/setup/openvla_ref_venv.sh`: `$LIBERO_OPENVLA_VENV`, else
 //! `<repo>/.openvla-venv`. Fails, never skips, when neither exists.
 
-use libero_policies::models::openvla::OpenVlaModel;
+use libero_policies::models::openvla::{Fusion, OpenVlaModel};
 use libero_policies::preprocess::RgbImage;
 use std::path::PathBuf;
 use tiny_reference::{max_abs_diff, npy};
@@ -92,6 +92,22 @@ fn tiny_openvla_matches_the_python_reference() {
         assert!(d <= 1e-5, "{instr:?}: batched logits differ by {d}");
         assert_eq!(alone.tokens, b.tokens, "{instr:?}: batched tokens");
         assert_eq!(alone.action, b.action, "{instr:?}: batched action");
+    }
+
+    // the fused kernels (the default on CUDA; here on the CPU, the RMSNorm excepted): the same
+    // tokens and actions as the reference, logits within the same bound, alone and batched
+    assert_eq!(model.fusion(), Fusion::NONE, "a CPU model computes transformers' operations one by one");
+    let mut fused = OpenVlaModel::load(&dir).unwrap();
+    fused.set_fusion(Fusion::ALL);
+    let f = fused.predict_action(&image, instruction, Some(unnorm_key)).unwrap();
+    let d_fused = max_abs_diff(&f.step_logits, &ref_logits);
+    eprintln!("fused kernels: logits {d_fused:.3e} from the Python reference");
+    assert!(d_fused <= 1e-4, "fused logits differ by {d_fused}");
+    assert_eq!(f.tokens, tokens, "fused greedy action tokens");
+    assert_eq!(f.action, pred.action);
+    for (b, fb) in batched.iter().zip(fused.predict_actions(&queries, Some(unnorm_key)).unwrap()) {
+        assert!(max_abs_diff(&b.step_logits, &fb.step_logits) <= 1e-4);
+        assert_eq!(b.tokens, fb.tokens, "fused batched tokens");
     }
 
     // errors that name what to fix

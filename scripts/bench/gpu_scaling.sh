@@ -9,6 +9,10 @@
 #                  attention): ms per call, actions/s, the fraction of the compute bound; int8's
 #                  and int4's tokens against bf16 on 32 random inputs; int4's tinygemm path
 #                  against its dequantised weight.
+#   fused          the language model's launch-saving kernels (`Fusion`, the bench's --fusion), bf16,
+#                  in one process per attention: none (transformers' operations one by one), each
+#                  part alone, and all, SDPA at B = 1, 8, 32, 64 and eager (OpenVLA's own) at
+#                  B = 1, 64; each set's tokens and logits against none on 32 random inputs.
 #   serve:W:S      the serving path without the simulator (the bench's --serve: W worker threads per
 #                  GPU, OpenVLA's preprocessing on each, the shared replicas' batchers), S seconds,
 #                  on cuda:0 and then on every GPU of the machine (W x GPUs workers: each replica
@@ -55,6 +59,11 @@ for part in "$@"; do
         "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --quant $q \
           --batch 1,8,32,64 --warmup 3 --iters 10 "${agree[@]}" --json "$out/quant-$q.json" 2>&1 | tee -a "$out/quant.log"
       done ;;
+    fused)
+      "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --fusion none/norm/qkv/gate_up/rotary_fma/all \
+        --batch 1,8,32,64 --warmup 3 --iters 10 --json "$out/fusion-sdpa.json" 2>&1 | tee -a "$out/fused.log"
+      "$BENCH" --checkpoint "$ckpt" --device cuda --attention eager --fusion none/all \
+        --batch 1,64 --warmup 3 --iters 10 --json "$out/fusion-eager.json" 2>&1 | tee -a "$out/fused.log" ;;
     serve)
       for devices in cuda:0 "$all_gpus"; do
         workers=$((a * $(echo "$devices" | tr ',' '\n' | wc -l)))
@@ -73,6 +82,6 @@ for part in "$@"; do
         echo "::: compare first-bf16 first-$r" | tee -a "$out/episodes.log"
         "$P" compare "$out/first-bf16" "$out/first-$r" --out "$out/compare-$r" 2>&1 | tail -3 | tee -a "$out/episodes.log"
       done ;;
-    *) echo "unknown part $part (quant, serve:W:S, episodes:T)" >&2; exit 2 ;;
+    *) echo "unknown part $part (quant, fused, serve:W:S, episodes:T)" >&2; exit 2 ;;
   esac
 done

@@ -36,12 +36,12 @@ pub enum Linear {
         scale: Tensor,
     },
     /// `nibbles` uint8 `[out, in / 2]` (input 2j in the high nibble, 2j + 1 in the low one: the
-    /// order tinygemm's `_convert_weight_to_int4pack` reads), `scale` and `zero` `[out, in / group]`
-    /// in the model's dtype.
+    /// order tinygemm's `_convert_weight_to_int4pack` reads); `scale_and_zero` `[in / group, out, 2]`
+    /// in the model's dtype, each group's scale and zero in the layout tinygemm takes, made once
+    /// here rather than stacked per call (two kernels per layer per decode step).
     Int4 {
         nibbles: Tensor,
-        scale: Tensor,
-        zero: Tensor,
+        scale_and_zero: Tensor,
         group: i64,
     },
 }
@@ -64,7 +64,7 @@ impl Linear {
         let y = match self {
             Linear::Dense(w) => return x.linear(w, bias),
             Linear::Int8 { q, scale } => x.linear(&q.to_kind(x.kind()), None::<Tensor>) * scale,
-            Linear::Int4 { nibbles, scale, zero, group } => {
+            Linear::Int4 { nibbles, scale_and_zero, group } => {
                 let (out, inputs) = (nibbles.size()[0], nibbles.size()[1] * 2);
                 let rows = x.numel() as i64 / inputs;
                 if x.device().is_cuda() && x.kind() == Kind::BFloat16 && rows <= INT4_TINYGEMM_MAX_ROWS && out % 8 == 0
@@ -72,13 +72,11 @@ impl Linear {
                     // tinygemm's k-tiles of 16 inputs, 2, 4 or 8 of them innermost: as many as the width allows
                     let inner_k_tiles = [8, 4, 2].into_iter().find(|t| inputs % (16 * t) == 0).unwrap_or(2);
                     let packed = nibbles.internal_convert_weight_to_int4pack(inner_k_tiles);
-                    // `[in / group, out, 2]`: each group's scale and zero
-                    let scale_and_zero = Tensor::stack(&[scale, zero], -1).transpose(0, 1).contiguous();
                     let mut shape = x.size();
                     *shape.last_mut().expect("x has a last dim") = out;
                     x.reshape([rows, inputs])
                         .contiguous()
-                        .internal_weight_int4pack_mm(&packed, *group, &scale_and_zero)
+                        .internal_weight_int4pack_mm(&packed, *group, scale_and_zero)
                         .view(shape.as_slice())
                 } else {
                     x.linear(&self.dequantized(x.kind()), None::<Tensor>)
@@ -98,7 +96,10 @@ impl Linear {
             Linear::Int8 { q, scale } => {
                 (q.to_kind(Kind::Float) * scale.to_kind(Kind::Float).unsqueeze(1)).to_kind(kind)
             }
-            Linear::Int4 { nibbles, scale, zero, group } => {
+            Linear::Int4 { nibbles, group, .. } => {
+                let (scale, zero) = self.int4_scale_and_zero().expect("int4");
+                // small copies `[out, in / group]`, so that the product below comes out `[out, in]` in order
+                let (scale, zero) = (scale.contiguous(), zero.contiguous());
                 // in `kind`, in few passes (a prefill dequantises the whole model): the nibbles
                 // apart, then `q · scale + (zero − 8 · scale)` in one fused multiply-add
                 let out = nibbles.size()[0];
@@ -109,6 +110,62 @@ impl Linear {
                 offset.addcmul(&q, &scale.to_kind(kind).unsqueeze(-1)).view([out, -1])
             }
         }
+    }
+
+    /// Layers that read the same input, one after the other by output (`[Σ out, in]`), stored as
+    /// they are. They must all be stored alike (dense, int8, or int4 with one group size).
+    pub fn stack(parts: Vec<Linear>) -> Result<Linear, String> {
+        let cat = |ts: Vec<&Tensor>, dim: i64| Tensor::cat(&ts, dim);
+        let first = parts.first().ok_or("no layers to stack")?;
+        let stacked = match first {
+            Linear::Dense(_) => {
+                let ws: Option<Vec<&Tensor>> =
+                    parts.iter().map(|p| if let Linear::Dense(w) = p { Some(w) } else { None }).collect();
+                ws.map(|ws| Linear::Dense(cat(ws, 0)))
+            }
+            Linear::Int8 { .. } => {
+                let qs: Option<Vec<(&Tensor, &Tensor)>> =
+                    parts.iter().map(|p| if let Linear::Int8 { q, scale } = p { Some((q, scale)) } else { None }).collect();
+                qs.map(|qs| Linear::Int8 {
+                    q: cat(qs.iter().map(|x| x.0).collect(), 0),
+                    scale: cat(qs.iter().map(|x| x.1).collect(), 0),
+                })
+            }
+            Linear::Int4 { group, .. } => {
+                let g = *group;
+                let qs: Option<Vec<(&Tensor, &Tensor)>> = parts
+                    .iter()
+                    .map(|p| match p {
+                        Linear::Int4 { nibbles, scale_and_zero, group } if *group == g => Some((nibbles, scale_and_zero)),
+                        _ => None,
+                    })
+                    .collect();
+                qs.map(|qs| Linear::Int4 {
+                    nibbles: cat(qs.iter().map(|x| x.0).collect(), 0),
+                    scale_and_zero: cat(qs.iter().map(|x| x.1).collect(), 1),
+                    group: g,
+                })
+            }
+        };
+        stacked.ok_or_else(|| "layers stored differently cannot be stacked".to_string())
+    }
+
+    /// Output rows `start .. start + len` as a layer of their own: views of this one's weight
+    /// (an int4 layer's scales and zeros are copied into tinygemm's contiguous layout).
+    pub fn rows(&self, start: i64, len: i64) -> Linear {
+        match self {
+            Linear::Dense(w) => Linear::Dense(w.narrow(0, start, len)),
+            Linear::Int8 { q, scale } => Linear::Int8 { q: q.narrow(0, start, len), scale: scale.narrow(0, start, len) },
+            Linear::Int4 { nibbles, scale_and_zero, group } => Linear::Int4 {
+                nibbles: nibbles.narrow(0, start, len),
+                scale_and_zero: scale_and_zero.narrow(1, start, len).contiguous(),
+                group: *group,
+            },
+        }
+    }
+
+    pub fn is_dense(&self) -> bool {
+        matches!(self, Linear::Dense(_))
     }
 
     /// `[out, in]`.
@@ -126,7 +183,17 @@ impl Linear {
         match self {
             Linear::Dense(w) => bytes(w),
             Linear::Int8 { q, scale } => bytes(q) + bytes(scale),
-            Linear::Int4 { nibbles, scale, zero, .. } => bytes(nibbles) + bytes(scale) + bytes(zero),
+            Linear::Int4 { nibbles, scale_and_zero, .. } => bytes(nibbles) + bytes(scale_and_zero),
+        }
+    }
+
+    /// An int4 layer's scales and zeros, each `[out, in / group]` (views of `scale_and_zero`).
+    pub fn int4_scale_and_zero(&self) -> Option<(Tensor, Tensor)> {
+        match self {
+            Linear::Int4 { scale_and_zero, .. } => {
+                Some((scale_and_zero.select(-1, 0).transpose(0, 1), scale_and_zero.select(-1, 1).transpose(0, 1)))
+            }
+            _ => None,
         }
     }
 
@@ -164,7 +231,8 @@ fn int4(weight: &Tensor, group: i64) -> Linear {
             .to_kind(Kind::Uint8)
             .view([out, inputs / 2, 2]);
         let nibbles = q.select(-1, 0).bitwise_left_shift_tensor_scalar(4).bitwise_or_tensor(&q.select(-1, 1));
-        Linear::Int4 { nibbles: nibbles.contiguous(), scale, zero, group }
+        let scale_and_zero = Tensor::stack(&[scale, zero], -1).transpose(0, 1).contiguous();
+        Linear::Int4 { nibbles: nibbles.contiguous(), scale_and_zero, group }
     })
 }
 
@@ -225,7 +293,8 @@ mod tests {
     fn int4_keeps_every_group_within_half_a_level_and_packs_two_weights_a_byte() {
         let w = random(24, 512, 2);
         let layer = Linear::new(w.shallow_clone(), Quantization::Int4);
-        let Linear::Int4 { nibbles, scale, .. } = &layer else { panic!("not int4") };
+        let Linear::Int4 { nibbles, .. } = &layer else { panic!("not int4") };
+        let (scale, zero) = layer.int4_scale_and_zero().unwrap();
         assert_eq!(nibbles.size(), [24, 256]);
         assert_eq!(scale.size(), [24, 4]);
         let deq = layer.dequantized(Kind::Float);
@@ -234,7 +303,7 @@ mod tests {
         let err = (deq.view([24, 4, 128]) - &groups).abs();
         assert!(err.le_tensor(&(half_level * 1.0001 + 1e-7)).all().int64_value(&[]) == 1, "{}", max_abs(&err));
         // the nibble order: input 0 in the high nibble of byte 0
-        let q0 = ((w.double_value(&[0, 0]) - layer_zero(&layer)) / scale.double_value(&[0, 0]) + 8.0).round();
+        let q0 = ((w.double_value(&[0, 0]) - zero.double_value(&[0, 0])) / scale.double_value(&[0, 0]) + 8.0).round();
         assert_eq!(nibbles.int64_value(&[0, 0]) >> 4, q0 as i64);
         let x = random(3, 512, 3);
         let diff = max_abs(
@@ -245,11 +314,22 @@ mod tests {
         assert!(diff < 1e-5, "int4 product vs dequantised weight: {diff}");
     }
 
-    fn layer_zero(layer: &Linear) -> f64 {
-        match layer {
-            Linear::Int4 { zero, .. } => zero.double_value(&[0, 0]),
-            _ => unreachable!(),
+    #[test]
+    fn stacked_layers_compute_each_part_and_give_their_rows_back() {
+        for quant in [Quantization::None, Quantization::Int8, Quantization::Int4] {
+            let (a, b) = (random(16, 256, 6), random(40, 256, 7));
+            let (la, lb) = (Linear::new(a, quant), Linear::new(b, quant));
+            let x = random(3, 256, 8);
+            let (ya, yb) = (la.forward(&x, None), lb.forward(&x, None));
+            let stacked = Linear::stack(vec![la, lb]).unwrap();
+            assert_eq!(stacked.size(), [56, 256]);
+            let y = stacked.forward(&x, None);
+            assert!(max_abs(&(y.narrow(1, 0, 16) - &ya)) < 1e-5, "{quant:?}");
+            assert!(max_abs(&(y.narrow(1, 16, 40) - &yb)) < 1e-5, "{quant:?}");
+            assert_eq!(max_abs(&(stacked.rows(16, 40).forward(&x, None) - &yb)), 0.0, "{quant:?}");
         }
+        let mixed = vec![Linear::new(random(8, 64, 9), Quantization::None), Linear::new(random(8, 64, 9), Quantization::Int8)];
+        assert!(Linear::stack(mixed).is_err());
     }
 
     #[test]

@@ -11,16 +11,98 @@ use super::weights::Weights;
 use crate::models::quant::Linear;
 use tch::{Device, Kind, Tensor};
 
+/// One decoder layer. The query, key and value projections are one matrix (their weights stacked
+/// by output at load time), and so are the gate and up projections: one matmul where
+/// transformers runs three or two, the same products per output up to the order of the GEMM's
+/// sums. The decode steps of a small batch are bound by kernel launches, not by the GPU's
+/// arithmetic, so each launch saved counts.
 struct Layer {
     input_norm: Tensor,
-    q: Linear,
-    k: Linear,
-    v: Linear,
+    /// `[(heads + 2 · kv_heads) · head_dim, hidden]`: q, then k, then v.
+    qkv: Linear,
     o: Linear,
     post_norm: Tensor,
-    gate: Linear,
-    up: Linear,
+    /// `[2 · intermediate, hidden]`: gate, then up.
+    gate_up: Linear,
     down: Linear,
+}
+
+/// Most rows (positions × sequences) of a forward for which [`Fusion::qkv`] and [`Fusion::gate_up`]
+/// stack their projections: at B = 1 and 8 the stacked GEMMs measured as fast or faster (B = 1:
+/// 70.6 ms a call with q/k/v stacked, 97.3 without), at B = 64 slower.
+pub const FUSED_PROJECTION_MAX_ROWS: i64 = 8;
+
+/// Fewer, larger kernels where transformers runs several: the decode steps of a small batch are
+/// bound by kernel launches on the GPU, not by its arithmetic. Each is a switch of its own so that
+/// the bench can measure what each buys (`policies/benches/openvla.rs --fusion`). Off, the forward
+/// is transformers' operations one by one (separate GEMMs on the stacked weights' row blocks,
+/// which are the original matrices), what its reference computes; on, products are the same up
+/// to the order of sums and roundings, so logits move within bf16 rounding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Fusion {
+    /// torch's fused RMSNorm kernel (f32 inside, one rounding to the dtype as transformers rounds)
+    /// and one multiply by the weight, instead of seven kernels. CUDA only: the CPU keeps
+    /// transformers' operations, on which the parity tests compare.
+    pub norm: bool,
+    /// One GEMM for q, k and v, and the rotary embedding once over the queries and keys, where a
+    /// forward has at most [`FUSED_PROJECTION_MAX_ROWS`] rows (positions × sequences): the decode
+    /// steps of a small batch, bound by launches. Larger forwards keep three GEMMs on the row
+    /// blocks: fused in every forward, OpenVLA-7B took 892 ms a call at B = 64 instead of 776, and
+    /// fused in the decode steps only, still 818 instead of 707
+    /// (`data/benchmarks/gpu-fusion-h100-2026-11-26`). Dense weights only: a quantised layer
+    /// converts its whole weight per call, so one stacked product saves little time, and its
+    /// larger temporaries cost a small card ~1 GB at B = 1 (int8 10.6 GB, int4 7.1 GB instead of
+    /// 9.7 and 6.0).
+    pub qkv: bool,
+    /// One GEMM for the MLP's gate and up projections, for as many rows as `qkv`.
+    pub gate_up: bool,
+    /// The rotary embedding's `x·cos + rotate_half(x)·sin` as a multiply and a fused multiply-add
+    /// (one rounding fewer than transformers').
+    pub rotary_fma: bool,
+}
+
+impl Fusion {
+    pub const NONE: Fusion = Fusion { norm: false, qkv: false, gate_up: false, rotary_fma: false };
+    pub const ALL: Fusion = Fusion { norm: true, qkv: true, gate_up: true, rotary_fma: true };
+}
+
+impl std::fmt::Display for Fusion {
+    /// `none`, `all`, or the parts on joined by `+` (`norm+qkv`), as [`Fusion::from_str`] reads them.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let parts: Vec<&str> = [(self.norm, "norm"), (self.qkv, "qkv"), (self.gate_up, "gate_up"), (self.rotary_fma, "rotary_fma")]
+            .into_iter()
+            .filter_map(|(on, name)| on.then_some(name))
+            .collect();
+        match parts.len() {
+            0 => write!(f, "none"),
+            4 => write!(f, "all"),
+            _ => write!(f, "{}", parts.join("+")),
+        }
+    }
+}
+
+impl std::str::FromStr for Fusion {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "none" => return Ok(Fusion::NONE),
+            "all" => return Ok(Fusion::ALL),
+            _ => {}
+        }
+        let mut f = Fusion::NONE;
+        for part in s.split('+') {
+            match part {
+                "norm" => f.norm = true,
+                "qkv" => f.qkv = true,
+                "gate_up" => f.gate_up = true,
+                "rotary_fma" => f.rotary_fma = true,
+                other => {
+                    return Err(format!("{other:?} is not a fusion: none, all, or norm, qkv, gate_up, rotary_fma joined by +"));
+                }
+            }
+        }
+        Ok(f)
+    }
 }
 
 /// Which of transformers' attention implementations the forward reproduces. In fp32 on a CPU they
@@ -39,6 +121,8 @@ pub enum Attention {
 pub struct Llama {
     cfg: LlamaConfig,
     attention: Attention,
+    /// The launch-saving kernels ([`Llama::set_fusion`]): all on by default on CUDA.
+    fusion: Fusion,
     embed: Tensor,
     layers: Vec<Layer>,
     norm: Tensor,
@@ -68,13 +152,14 @@ impl Llama {
             let name = |s: &str| format!("{p}layers.{i}.{s}.weight");
             layers.push(Layer {
                 input_norm: w.take(&name("input_layernorm"))?,
-                q: w.take_linear(&name("self_attn.q_proj"))?,
-                k: w.take_linear(&name("self_attn.k_proj"))?,
-                v: w.take_linear(&name("self_attn.v_proj"))?,
+                qkv: w.take_linear_stacked(&[
+                    &name("self_attn.q_proj"),
+                    &name("self_attn.k_proj"),
+                    &name("self_attn.v_proj"),
+                ])?,
                 o: w.take_linear(&name("self_attn.o_proj"))?,
                 post_norm: w.take(&name("post_attention_layernorm"))?,
-                gate: w.take_linear(&name("mlp.gate_proj"))?,
-                up: w.take_linear(&name("mlp.up_proj"))?,
+                gate_up: w.take_linear_stacked(&[&name("mlp.gate_proj"), &name("mlp.up_proj")])?,
                 down: w.take_linear(&name("mlp.down_proj"))?,
             });
         }
@@ -92,6 +177,7 @@ impl Llama {
         Ok(Llama {
             cfg: cfg.clone(),
             attention: Attention::Eager,
+            fusion: if device.is_cuda() { Fusion::ALL } else { Fusion::NONE },
             embed,
             layers,
             norm: w.take(&format!("{p}norm.weight"))?,
@@ -109,6 +195,15 @@ impl Llama {
         self.attention
     }
 
+    /// Which launch-saving kernels the forwards use ([`Fusion`]; all on CUDA by default, none on a CPU).
+    pub fn set_fusion(&mut self, fusion: Fusion) {
+        self.fusion = fusion;
+    }
+
+    pub fn fusion(&self) -> Fusion {
+        self.fusion
+    }
+
     /// A cache for rows whose first `left_pad[b]` positions are padding (all zero: no padding).
     pub fn new_cache(&self, left_pad: &[i64]) -> KvCache {
         let device = self.embed.device();
@@ -121,8 +216,14 @@ impl Llama {
         Tensor::embedding(&self.embed, ids, -1, false, false)
     }
 
+    /// transformers' `LlamaRMSNorm`: `w · (x / rms(x)).to(dtype)`, the normalisation in f32 (with
+    /// [`Fusion::norm`] on CUDA, torch's fused kernel).
     fn rms_norm(&self, x: &Tensor, w: &Tensor) -> Tensor {
         let kind = x.kind();
+        if self.fusion.norm && x.device().is_cuda() {
+            let hidden = *x.size().last().expect("x has a last dim");
+            return w * x.rms_norm([hidden], None::<Tensor>, Some(self.cfg.rms_norm_eps));
+        }
         let h = x.to_kind(Kind::Float);
         let var = h.pow_tensor_scalar(2).mean_dim(-1, true, Kind::Float);
         let h = &h * (var + self.cfg.rms_norm_eps).rsqrt();
@@ -170,10 +271,11 @@ impl Llama {
         let freqs = pos.unsqueeze(-1) * self.inv_freq.view([1, 1, -1]);
         let emb = Tensor::cat(&[&freqs, &freqs], -1).unsqueeze(1);
         let (cos, sin) = (emb.cos().to_kind(embeds.kind()), emb.sin().to_kind(embeds.kind()));
+        // `x · cos + rotate_half(x) · sin`
         let rope = |x: &Tensor| {
             let x1 = x.narrow(-1, 0, hd / 2);
-            let x2 = x.narrow(-1, hd / 2, hd / 2);
-            x * &cos + Tensor::cat(&[&x2.neg(), &x1], -1) * &sin
+            let rotated = Tensor::cat(&[&x.narrow(-1, hd / 2, hd / 2).neg(), &x1], -1);
+            if self.fusion.rotary_fma { (x * &cos).addcmul(&rotated, &sin) } else { x * &cos + rotated * &sin }
         };
         // `[B or 1, 1, T, total]`: a later key, or a row's padding, gets torch.finfo(dtype).min as
         // transformers adds it (filled once per position, so a fully masked padding row stays finite)
@@ -199,11 +301,25 @@ impl Llama {
         let mut x = embeds.shallow_clone();
         for (li, l) in self.layers.iter().enumerate() {
             let h = self.rms_norm(&x, &l.input_norm);
-            let q = rope(&l.q.forward(&h, None).view([b, t, nh, hd]).transpose(1, 2));
-            let k = rope(&l.k.forward(&h, None).view([b, t, nkv, hd]).transpose(1, 2));
-            let v = l.v.forward(&h, None).view([b, t, nkv, hd]).transpose(1, 2);
+            // few rows of dense weights only (see `Fusion::qkv`)
+            let few = b * t <= FUSED_PROJECTION_MAX_ROWS;
+            let fuse_qkv = self.fusion.qkv && few && l.qkv.is_dense();
+            let fuse_gate_up = self.fusion.gate_up && few && l.gate_up.is_dense();
+            let (q, k, v) = if fuse_qkv {
+                // `[B, heads + 2 · kv_heads, T, head_dim]`: the rotation once over the queries and keys
+                let qkv = l.qkv.forward(&h, None).view([b, t, nh + 2 * nkv, hd]).transpose(1, 2);
+                let qk = rope(&qkv.narrow(1, 0, nh + nkv));
+                (qk.narrow(1, 0, nh), qk.narrow(1, nh, nkv), qkv.narrow(1, nh + nkv, nkv))
+            } else {
+                let heads = |start: i64, n: i64| {
+                    l.qkv.rows(start * hd, n * hd).forward(&h, None).view([b, t, n, hd]).transpose(1, 2)
+                };
+                (rope(&heads(0, nh)), rope(&heads(nh, nkv)), heads(nh + nkv, nkv))
+            };
             let (k, v) = match cache.kv[li].take() {
                 Some((pk, pv)) => (Tensor::cat(&[&pk, &k], 2), Tensor::cat(&[&pv, &v], 2)),
+                // copies of their own: views would keep the whole projection alive in the cache
+                None if fuse_qkv => (k.contiguous(), v.contiguous()),
                 None => (k, v),
             };
             cache.kv[li] = Some((k.shallow_clone(), v.shallow_clone()));
@@ -227,7 +343,13 @@ impl Llama {
             let o = o.transpose(1, 2).reshape([b, t, nh * hd]);
             x = x + l.o.forward(&o, None);
             let h = self.rms_norm(&x, &l.post_norm);
-            let g = l.gate.forward(&h, None).silu() * l.up.forward(&h, None);
+            let inter = l.gate_up.size()[0] / 2;
+            let g = if fuse_gate_up {
+                let gate_up = l.gate_up.forward(&h, None);
+                gate_up.narrow(-1, 0, inter).silu() * gate_up.narrow(-1, inter, inter)
+            } else {
+                l.gate_up.rows(0, inter).forward(&h, None).silu() * l.gate_up.rows(inter, inter).forward(&h, None)
+            };
             x = x + l.down.forward(&g, None);
         }
         cache.len = total;

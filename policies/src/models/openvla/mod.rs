@@ -40,7 +40,11 @@ use crate::placement::Quantization;
 use crate::preprocess::RgbImage;
 pub use action::ActionBins;
 pub use config::OpenVlaConfig;
-pub use llama::Attention;
+pub use llama::{Attention, Fusion};
+
+/// What the language model's kernels are, for the run manifest ([`Fusion`]).
+pub const KERNELS: &str = "GPU: one GEMM for q/k/v and one for gate/up, torch's fused RMSNorm, the rotary embedding with a fused \
+     multiply-add (logits within bf16 rounding of transformers' operations); CPU: transformers' operations one by one";
 pub use policy::{OpenVlaBatchModel, OpenVlaPolicy};
 use std::path::Path;
 use tch::{Device, Kind, Tensor};
@@ -136,6 +140,15 @@ impl OpenVlaModel {
     /// runs it (see [`Attention`]).
     pub fn set_attention(&mut self, attention: Attention) {
         self.llm.set_attention(attention);
+    }
+
+    /// The language model's launch-saving kernels ([`Fusion`]: all on by default on CUDA, none on a CPU).
+    pub fn set_fusion(&mut self, fusion: Fusion) {
+        self.llm.set_fusion(fusion);
+    }
+
+    pub fn fusion(&self) -> Fusion {
+        self.llm.fusion()
     }
 
     pub fn attention(&self) -> Attention {

@@ -64,6 +64,15 @@ impl Weights {
         Ok(Linear::new(self.take(name)?, self.quant))
     }
 
+    /// Linear weights that read the same input, stacked by output (`[Σ out, in]`) into one layer.
+    /// Each is quantised alone, then stacked (levels are per output channel or per group of a
+    /// row's inputs, so they are the same either way): a quantisation's f32 temporaries stay
+    /// those of one layer, which sets a small card's peak memory at load.
+    pub fn take_linear_stacked(&mut self, names: &[&str]) -> Result<Linear, OpenVlaError> {
+        let parts = names.iter().map(|n| self.take_linear(n)).collect::<Result<Vec<_>, _>>()?;
+        Linear::stack(parts).map_err(bad)
+    }
+
     /// How many `{prefix}{i}.` groups there are (blocks, layers), counting from 0.
     pub fn count_indexed(&self, prefix: &str) -> usize {
         let mut n = 0;

@@ -339,6 +339,15 @@ impl OftModel {
     }
 
     /// The attention implementation (SDPA, as OFT loads it; eager for comparisons).
+    /// The backbone's launch-saving kernels ([`super::Fusion`]).
+    pub fn set_fusion(&mut self, fusion: super::Fusion) {
+        self.base.set_fusion(fusion);
+    }
+
+    pub fn fusion(&self) -> super::Fusion {
+        self.base.fusion()
+    }
+
     pub fn set_attention(&mut self, attention: super::Attention) {
         self.base.set_attention(attention);
     }

@@ -128,6 +128,7 @@ impl OftPolicy {
                 |n| serde_json::json!({"max_episodes_per_forward": n, "padding": "left, masked"})
             ),
             "dtype": "bf16 on a GPU, f32 on a CPU",
+            "kernels": crate::models::openvla::KERNELS,
         }))
     }
 }

@@ -64,10 +64,10 @@ ln -sfn "$CACHE/libtorch-2.11.0/torch" third_party/libtorch
 # The release build needs only MuJoCo and libtorch: it runs in the background while the
 # (single-threaded) reference data is made, which saves ~10 min on a fresh 2-core machine.
 if [ "$BUILD" = 1 ]; then
-  step "cargo build --release (in the background; log: $CACHE/setup-build.log)"
+  step "cargo build --release (in the background; log: $CACHE/setup-build.log, per-crate times: cargo-timings/ in the target dir)"
   mkdir -p "$CACHE"
   rm -f "$CACHE/setup-build.rc"
-  ( set +e; cargo build --release --quiet > "$CACHE/setup-build.log" 2>&1; echo $? > "$CACHE/setup-build.rc" ) &
+  ( set +e; cargo build --release --quiet --timings > "$CACHE/setup-build.log" 2>&1; echo $? > "$CACHE/setup-build.rc" ) &
   BUILD_PID=$!
   BACKGROUND="$BACKGROUND $BUILD_PID"
 fi

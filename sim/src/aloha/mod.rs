@@ -11,7 +11,9 @@
 //! - [`control`]: action → actuator controls (the gripper mapping) and joints → `agent_pos`;
 //! - [`reward`]: the 0–4 reward from ordered contact pairs;
 //! - [`env`]: [`AlohaEnv`], reset, the 50 Hz step (dm_control's substep sequence) and the `top`
-//!   camera.
+//!   camera;
+//! - [`scripted`]: [`ScriptedPlan`], the positive control: both tasks solved by a joint-space plan
+//!   (inverse kinematics of ACT's scripted waypoints) made from the initial object poses.
 //!
 //! ```no_run
 //! use libero_sim::aloha::{AlohaBundle, AlohaEnv, AlohaTask, START_ARM_POSE};
@@ -29,10 +31,12 @@ pub mod control;
 pub mod env;
 pub mod mt19937;
 pub mod reward;
+pub mod scripted;
 pub mod task;
 
 pub use bundle::AlohaBundle;
 pub use control::{ACTION_DIM, START_ARM_POSE};
 pub use env::AlohaEnv;
 pub use reward::MAX_REWARD;
+pub use scripted::ScriptedPlan;
 pub use task::AlohaTask;

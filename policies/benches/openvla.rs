@@ -126,7 +126,11 @@ fn parse_args() -> Result<Args, String> {
             "--quant" => a.quant = value()?.parse()?,
             "--agreement" => a.agreement = true,
             "--fusion" => {
-                a.fusions = value()?.split('/').map(str::parse).collect::<Result<_, _>>().map_err(|e| format!("--fusion: {e}"))?
+                a.fusions = value()?
+                    .split('/')
+                    .map(str::parse)
+                    .collect::<Result<_, _>>()
+                    .map_err(|e| format!("--fusion: {e}"))?
             }
             "--serve" => a.serve = Some(value()?.parse().map_err(|e| format!("--serve: {e}"))?),
             "--devices" => a.devices = parse_devices(&value()?)?,
@@ -417,15 +421,19 @@ fn token_agreement(
 ) -> serde_json::Value {
     let reference = OpenVlaModel::load_on(dir, device, kind).unwrap_or_else(|e| panic!("{e}"));
     let queries = queries_of(images);
-    let summary =
-        agreement(&predict_all(quantized, &queries, unnorm), &predict_all(&reference, &queries, unnorm));
+    let summary = agreement(&predict_all(quantized, &queries, unnorm), &predict_all(&reference, &queries, unnorm));
     println!("  tokens vs the unquantised model on {} inputs: {summary}", queries.len());
     summary
 }
 
 /// `fusion` against transformers' operations one by one (`Fusion::NONE`), on the same model and
 /// inputs: the tokens and first-step logits of both.
-fn fusion_agreement(model: &mut OpenVlaModel, fusion: Fusion, unnorm: Option<&str>, images: &[RgbImage]) -> serde_json::Value {
+fn fusion_agreement(
+    model: &mut OpenVlaModel,
+    fusion: Fusion,
+    unnorm: Option<&str>,
+    images: &[RgbImage],
+) -> serde_json::Value {
     let (queries, before) = (queries_of(images), model.fusion());
     model.set_fusion(fusion);
     let fused = predict_all(model, &queries, unnorm);
@@ -561,7 +569,9 @@ fn main() {
                 (Some(m), _) => {
                     let queries: Vec<(&RgbImage, &str)> = (0..b).map(|i| (&images[i], instruction(i))).collect();
                     let unnorm = unnorm.clone();
-                    Box::new(move || m.predict_actions(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}")).len())
+                    Box::new(move || {
+                        m.predict_actions(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}")).len()
+                    })
                 }
                 (_, Some(m)) => {
                     let queries: Vec<OftQuery> = (0..b)
@@ -573,7 +583,9 @@ fn main() {
                         })
                         .collect();
                     let unnorm = unnorm.clone();
-                    Box::new(move || m.predict_chunks(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}")).len())
+                    Box::new(move || {
+                        m.predict_chunks(&queries, unnorm.as_deref()).unwrap_or_else(|e| panic!("{e}")).len()
+                    })
                 }
                 _ => unreachable!(),
             };

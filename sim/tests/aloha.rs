@@ -240,7 +240,12 @@ fn top_frames_match_the_oracles() {
 
 /// The episodes of lerobot's protocol (seeds 1000 + i) of `task` that reach reward 4 within
 /// `steps`, each action from `act(env, seed, t)`, on two threads.
-fn successes(task: AlohaTask, seeds: std::ops::Range<u32>, steps: u32, act: &(dyn Fn(&AlohaEnv, u32, u32, &mut Vec<[f32; 14]>) -> [f32; 14] + Sync)) -> Vec<u32> {
+fn successes(
+    task: AlohaTask,
+    seeds: std::ops::Range<u32>,
+    steps: u32,
+    act: &(dyn Fn(&AlohaEnv, u32, u32, &mut Vec<[f32; 14]>) -> [f32; 14] + Sync),
+) -> Vec<u32> {
     let seeds: Vec<u32> = seeds.collect();
     let halves: Vec<&[u32]> = seeds.chunks(seeds.len().div_ceil(2)).collect();
     std::thread::scope(|s| {

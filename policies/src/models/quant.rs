@@ -124,8 +124,10 @@ impl Linear {
                 ws.map(|ws| Linear::Dense(cat(ws, 0)))
             }
             Linear::Int8 { .. } => {
-                let qs: Option<Vec<(&Tensor, &Tensor)>> =
-                    parts.iter().map(|p| if let Linear::Int8 { q, scale } = p { Some((q, scale)) } else { None }).collect();
+                let qs: Option<Vec<(&Tensor, &Tensor)>> = parts
+                    .iter()
+                    .map(|p| if let Linear::Int8 { q, scale } = p { Some((q, scale)) } else { None })
+                    .collect();
                 qs.map(|qs| Linear::Int8 {
                     q: cat(qs.iter().map(|x| x.0).collect(), 0),
                     scale: cat(qs.iter().map(|x| x.1).collect(), 0),
@@ -136,7 +138,9 @@ impl Linear {
                 let qs: Option<Vec<(&Tensor, &Tensor)>> = parts
                     .iter()
                     .map(|p| match p {
-                        Linear::Int4 { nibbles, scale_and_zero, group } if *group == g => Some((nibbles, scale_and_zero)),
+                        Linear::Int4 { nibbles, scale_and_zero, group } if *group == g => {
+                            Some((nibbles, scale_and_zero))
+                        }
                         _ => None,
                     })
                     .collect();
@@ -155,7 +159,9 @@ impl Linear {
     pub fn rows(&self, start: i64, len: i64) -> Linear {
         match self {
             Linear::Dense(w) => Linear::Dense(w.narrow(0, start, len)),
-            Linear::Int8 { q, scale } => Linear::Int8 { q: q.narrow(0, start, len), scale: scale.narrow(0, start, len) },
+            Linear::Int8 { q, scale } => {
+                Linear::Int8 { q: q.narrow(0, start, len), scale: scale.narrow(0, start, len) }
+            }
             Linear::Int4 { nibbles, scale_and_zero, group } => Linear::Int4 {
                 nibbles: nibbles.narrow(0, start, len),
                 scale_and_zero: scale_and_zero.narrow(1, start, len).contiguous(),
@@ -328,7 +334,8 @@ mod tests {
             assert!(max_abs(&(y.narrow(1, 16, 40) - &yb)) < 1e-5, "{quant:?}");
             assert_eq!(max_abs(&(stacked.rows(16, 40).forward(&x, None) - &yb)), 0.0, "{quant:?}");
         }
-        let mixed = vec![Linear::new(random(8, 64, 9), Quantization::None), Linear::new(random(8, 64, 9), Quantization::Int8)];
+        let mixed =
+            vec![Linear::new(random(8, 64, 9), Quantization::None), Linear::new(random(8, 64, 9), Quantization::Int8)];
         assert!(Linear::stack(mixed).is_err());
     }
 

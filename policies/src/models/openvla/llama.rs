@@ -69,10 +69,11 @@ impl Fusion {
 impl std::fmt::Display for Fusion {
     /// `none`, `all`, or the parts on joined by `+` (`norm+qkv`), as [`Fusion::from_str`] reads them.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let parts: Vec<&str> = [(self.norm, "norm"), (self.qkv, "qkv"), (self.gate_up, "gate_up"), (self.rotary_fma, "rotary_fma")]
-            .into_iter()
-            .filter_map(|(on, name)| on.then_some(name))
-            .collect();
+        let parts: Vec<&str> =
+            [(self.norm, "norm"), (self.qkv, "qkv"), (self.gate_up, "gate_up"), (self.rotary_fma, "rotary_fma")]
+                .into_iter()
+                .filter_map(|(on, name)| on.then_some(name))
+                .collect();
         match parts.len() {
             0 => write!(f, "none"),
             4 => write!(f, "all"),
@@ -97,7 +98,9 @@ impl std::str::FromStr for Fusion {
                 "gate_up" => f.gate_up = true,
                 "rotary_fma" => f.rotary_fma = true,
                 other => {
-                    return Err(format!("{other:?} is not a fusion: none, all, or norm, qkv, gate_up, rotary_fma joined by +"));
+                    return Err(format!(
+                        "{other:?} is not a fusion: none, all, or norm, qkv, gate_up, rotary_fma joined by +"
+                    ));
                 }
             }
         }

@@ -68,9 +68,11 @@ fn an_oft_checkpoint_runs_through_the_pipeline() {
 
 /// `&batch=4` with 4 workers: the episodes' queries share forwards (prompts of different lengths,
 /// left-padded), and each episode's actions are those of one episode per forward: the first chunk's
-/// arm within 1e-5 (continuous outputs: a batch changes the order of sums; measured ≤ 1.4e-6), the
-/// gripper equal. The second chunk is asked from states that already differ by the first chunk's
-/// differences, which the JPEG round trip and the random weights amplify (measured up to 1.5e-4):
+/// arm within 1e-4 (continuous outputs: a batch changes the GEMM kernels and the order of sums), the
+/// gripper equal. Which episodes share a forward depends on when each asks (`wait_ms`), and so does
+/// the difference: measured 1.5e-6 for most pairings, 2.4e-5 and 2.9e-5 for others (on two
+/// machines); a wrong row's readout or a padding key attended to moves the arm by ~1e-1. The second chunk is asked from states that already differ by the first chunk's
+/// differences, which the JPEG round trip and the random weights amplify (measured up to 9.3e-4):
 /// it must stay within 1e-2, far below what a wrong row's readout or padding would give.
 #[test]
 fn batched_oft_forwards_give_each_episode_its_unbatched_actions() {
@@ -93,6 +95,6 @@ fn batched_oft_forwards_give_each_episode_its_unbatched_actions() {
         *chunk = chunk.max(d);
     }
     eprintln!("batched vs one episode per forward: max |Δ action| first chunk {first:.2e}, second {later:.2e}");
-    assert!(first <= 1e-5, "batched actions of the first chunk differ by {first}");
+    assert!(first <= 1e-4, "batched actions of the first chunk differ by {first}");
     assert!(later <= 1e-2, "batched actions of the second chunk differ by {later}");
 }

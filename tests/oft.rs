@@ -72,8 +72,9 @@ fn an_oft_checkpoint_runs_through_the_pipeline() {
 /// gripper equal. Which episodes share a forward depends on when each asks (`wait_ms`), and so does
 /// the difference: measured 1.5e-6 for most pairings, 2.4e-5 and 2.9e-5 for others (on two
 /// machines); a wrong row's readout or a padding key attended to moves the arm by ~1e-1. The
-/// second chunk is asked from states that already differ by the first chunk's differences, which the JPEG round trip and the random weights amplify (measured up to 9.3e-4):
-/// it must stay within 1e-2, far below what a wrong row's readout or padding would give.
+/// second chunk is asked from states that already differ by the first chunk's differences, which
+/// the JPEG round trip and the random weights amplify (measured up to 9.3e-4): it must stay within
+/// 1e-2, far below what a wrong row's readout or padding would give.
 #[test]
 fn batched_oft_forwards_give_each_episode_its_unbatched_actions() {
     let d = test_dir("oft", "batch");

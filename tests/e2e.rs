@@ -1,0 +1,33 @@
+//! The end-to-end tests of the binary, the bundles and the reference parity, one module a concern,
+//! all in one test binary (see `Cargo.toml`: one link of the DataFusion stack instead of one per
+//! module); each module's file lies beside this one.
+//! Modules share the process: each test writes under its own `test_dir(<module>, <case>)`.
+
+mod bundles;
+mod cli;
+mod cloud_store;
+mod compaction;
+mod compare;
+mod dataflow;
+mod distributed;
+mod env;
+mod expert;
+mod failure_modes;
+mod generalisation;
+mod libero_plus;
+mod media;
+mod noise;
+mod notebook;
+mod oft;
+mod openvla;
+mod parity;
+mod plus_layout;
+mod pro;
+mod pro_occlusion;
+mod pro_robustness;
+mod remote_policy;
+mod render;
+mod report;
+mod starvla_policy;
+mod torchscript;
+mod vla_eval_policy;

@@ -243,6 +243,98 @@ if [ -n "$PLUS_LAYOUT_SUITES" ]; then
   plus_layout --suites "$PLUS_LAYOUT_SUITES" ${LIBERO_PLUS_LAYOUT_PER_SUITE:+--per-suite "$LIBERO_PLUS_LAYOUT_PER_SUITE"}
 fi
 
+# The perturbation suites' reference data (LIBERO-Plus, LIBERO-PRO) needs only the bundles and the
+# venvs: it is made in the background, beside the golden trajectories and the frames below, so that
+# both cores stay busy once the release build is done (a fresh 2-core machine: ~10 min of single-core
+# Python that ran after the golden trajectories).
+step "perturbation reference data (LIBERO-Plus, LIBERO-PRO; in the background; log: $CACHE/setup-perturbation.log)"
+rm -f "$CACHE/setup-perturbation.rc"
+(
+  set +e
+  (
+    set -e
+    step "LIBERO-Plus reference episodes (camera viewpoints, robot init poses) for the perturbation parity tests"
+    PLUS_GOLDEN="$CACHE/plus-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
+      scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/plus_oracle.py | sha256sum | cut -c1-12)"
+    plus_suites=0
+    for s in libero_spatial libero_object libero_goal libero_10; do case ",$SUITES," in *,"$s",*) plus_suites=$((plus_suites + 1)) ;; esac; done
+    if [ "$plus_suites" != 4 ]; then
+      echo "  skipped: its cases use tasks of all four canonical suites (./setup.sh without --suites builds them)"
+    elif [ ! -f "$PLUS_GOLDEN/.complete" ]; then
+      rm -rf "$PLUS_GOLDEN"
+      (cd scripts/reference && LIBERO_BUNDLES="$BUNDLES" "$VENV/bin/python" plus_oracle.py "$PLUS_WHEEL" "$PLUS_GOLDEN" \
+        >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+      touch "$PLUS_GOLDEN/.complete"
+    fi
+    [ "$plus_suites" = 4 ] && ln -sfn "$PLUS_GOLDEN" data/plus_golden
+
+    step "LIBERO-PRO robustness: the objects' footprint radii, and reference episodes for the parity tests"
+    # robosuite's horizontal_radius per object class (LIBERO's and LIBERO-PRO's packages), beside
+    # index.json: the placement perturbations need it, and the compiled scenes drop the sites it is read from.
+    RADII_STAMP="$BUNDLES/.object-radii-$(sha256sum scripts/reference/pro_robustness_oracle.py | cut -c1-12)"
+    if [ ! -f "$RADII_STAMP" ]; then
+      rm -f "$BUNDLES/object_radii.json" "$BUNDLES"/.object-radii-*
+      for v in "$VENV" "$PRO_VENV"; do
+        (cd scripts/reference && "$v/bin/python" pro_robustness_oracle.py radii "$BUNDLES/object_radii.json" \
+          2> >(grep -v "WARNING" >&2))
+      done
+      touch "$RADII_STAMP"
+    fi
+    PRO_ROBUSTNESS_GOLDEN="$CACHE/pro-robustness-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
+      scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/pro_robustness_oracle.py | sha256sum | cut -c1-12)"
+    if [ "$plus_suites" != 4 ]; then
+      echo "  skipped: its cases use tasks of all four canonical suites (./setup.sh without --suites builds them)"
+    elif [ ! -f "$PRO_ROBUSTNESS_GOLDEN/.complete" ]; then
+      rm -rf "$PRO_ROBUSTNESS_GOLDEN"
+      (cd scripts/reference && LIBERO_BUNDLES="$BUNDLES" "$VENV/bin/python" pro_robustness_oracle.py cases \
+        "$PRO_ROBUSTNESS_GOLDEN" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+      touch "$PRO_ROBUSTNESS_GOLDEN/.complete"
+    fi
+    [ "$plus_suites" = 4 ] && ln -sfn "$PRO_ROBUSTNESS_GOLDEN" data/pro_robustness_golden
+
+    step "LIBERO-PRO view_occlusion: occluder scenes (a bundle per task) and reference episodes for their parity test"
+    # Each task's scene with the occluder added, the clean init states mapped by joint name
+    # (pro_occlusion.py). The tests' sample is always built (2 bundles, ~1 min on 2 cores); all 40
+    # with --suites libero_pro_occlusion (~15 min), or one suite's (libero_goal_view_occlusion);
+    # resumable, stamps keyed by the scripts that make them.
+    PRO_OCCLUSION_TEST_TASKS="libero_goal/8,libero_10/5"  # keep equal to tests/pro_occlusion.rs TEST_TASKS
+    PRO_OCCLUSION="$CACHE/pro-occlusion-$(cat scripts/reference/pro_occlusion.py scripts/reference/pro_robustness_oracle.py \
+      scripts/reference/golden.py | sha256sum | cut -c1-12)"
+    pro_occlusion() {
+      (cd scripts/reference && "$VENV/bin/python" pro_occlusion.py "$@" > /dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+    }
+    pro_occlusion build "$BUNDLES" --occlusion "$PRO_OCCLUSION" --tasks "$PRO_OCCLUSION_TEST_TASKS"
+    if [ -n "$PRO_OCCLUSION_SUITES" ]; then
+      pro_occlusion build "$BUNDLES" --occlusion "$PRO_OCCLUSION" --tasks "$PRO_OCCLUSION_SUITES"
+    fi
+    PRO_OCCLUSION_GOLDEN="$CACHE/pro-occlusion-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
+      scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/pro_robustness_oracle.py \
+      scripts/reference/pro_occlusion.py | sha256sum | cut -c1-12)"
+    if [ ! -f "$PRO_OCCLUSION_GOLDEN/.complete" ]; then
+      rm -rf "$PRO_OCCLUSION_GOLDEN"
+      pro_occlusion golden "$PRO_OCCLUSION_GOLDEN" --occlusion "$PRO_OCCLUSION"
+      touch "$PRO_OCCLUSION_GOLDEN/.complete"
+    fi
+    ln -sfn "$PRO_OCCLUSION_GOLDEN" data/pro_occlusion_golden
+
+    step "LIBERO-Plus layout reference episodes (the tests' sample of layout bundles) for their parity test"
+    PLUS_LAYOUT_GOLDEN="$CACHE/plus-layout-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
+      scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/plus_layout.py \
+      scripts/reference/liberoplus_variants.py | sha256sum | cut -c1-12)"
+    if [ ! -f "$PLUS_LAYOUT_GOLDEN/.complete" ]; then
+      rm -rf "$PLUS_LAYOUT_GOLDEN"
+      (cd scripts/reference && "$VENV/bin/python" plus_layout.py golden "$PLUS_LAYOUT_GOLDEN" --layout "$PLUS_LAYOUT" \
+        --per-suite "$PLUS_LAYOUT_TEST_PER_SUITE" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+      touch "$PLUS_LAYOUT_GOLDEN/.complete"
+    fi
+    ln -sfn "$PLUS_LAYOUT_GOLDEN" data/plus_layout_golden
+
+  ) > "$CACHE/setup-perturbation.log" 2>&1
+  echo $? > "$CACHE/setup-perturbation.rc"
+) &
+PERTURBATION_PID=$!
+BACKGROUND="$BACKGROUND $PERTURBATION_PID"
+
 step "golden reference trajectories for the parity tests"
 GOLDEN_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/pro_venv.sh scripts/reference/build_bundles.py \
   scripts/reference/libero_ref.py scripts/reference/golden.py | sha256sum | cut -c1-12)
@@ -253,82 +345,6 @@ for s in ${SUITES//,/ }; do
 done
 for_missing golden.py "$GOLDEN" "$golden${golden:+,}$PRO_TEST_TASKS" >/dev/null
 ln -sfn "$GOLDEN" data/golden
-
-step "LIBERO-Plus reference episodes (camera viewpoints, robot init poses) for the perturbation parity tests"
-PLUS_GOLDEN="$CACHE/plus-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
-  scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/plus_oracle.py | sha256sum | cut -c1-12)"
-plus_suites=0
-for s in libero_spatial libero_object libero_goal libero_10; do case ",$SUITES," in *,"$s",*) plus_suites=$((plus_suites + 1)) ;; esac; done
-if [ "$plus_suites" != 4 ]; then
-  echo "  skipped: its cases use tasks of all four canonical suites (./setup.sh without --suites builds them)"
-elif [ ! -f "$PLUS_GOLDEN/.complete" ]; then
-  rm -rf "$PLUS_GOLDEN"
-  (cd scripts/reference && LIBERO_BUNDLES="$BUNDLES" "$VENV/bin/python" plus_oracle.py "$PLUS_WHEEL" "$PLUS_GOLDEN" \
-    >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
-  touch "$PLUS_GOLDEN/.complete"
-fi
-[ "$plus_suites" = 4 ] && ln -sfn "$PLUS_GOLDEN" data/plus_golden
-
-step "LIBERO-PRO robustness: the objects' footprint radii, and reference episodes for the parity tests"
-# robosuite's horizontal_radius per object class (LIBERO's and LIBERO-PRO's packages), beside
-# index.json: the placement perturbations need it, and the compiled scenes drop the sites it is read from.
-RADII_STAMP="$BUNDLES/.object-radii-$(sha256sum scripts/reference/pro_robustness_oracle.py | cut -c1-12)"
-if [ ! -f "$RADII_STAMP" ]; then
-  rm -f "$BUNDLES/object_radii.json" "$BUNDLES"/.object-radii-*
-  for v in "$VENV" "$PRO_VENV"; do
-    (cd scripts/reference && "$v/bin/python" pro_robustness_oracle.py radii "$BUNDLES/object_radii.json" \
-      2> >(grep -v "WARNING" >&2))
-  done
-  touch "$RADII_STAMP"
-fi
-PRO_ROBUSTNESS_GOLDEN="$CACHE/pro-robustness-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
-  scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/pro_robustness_oracle.py | sha256sum | cut -c1-12)"
-if [ "$plus_suites" != 4 ]; then
-  echo "  skipped: its cases use tasks of all four canonical suites (./setup.sh without --suites builds them)"
-elif [ ! -f "$PRO_ROBUSTNESS_GOLDEN/.complete" ]; then
-  rm -rf "$PRO_ROBUSTNESS_GOLDEN"
-  (cd scripts/reference && LIBERO_BUNDLES="$BUNDLES" "$VENV/bin/python" pro_robustness_oracle.py cases \
-    "$PRO_ROBUSTNESS_GOLDEN" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
-  touch "$PRO_ROBUSTNESS_GOLDEN/.complete"
-fi
-[ "$plus_suites" = 4 ] && ln -sfn "$PRO_ROBUSTNESS_GOLDEN" data/pro_robustness_golden
-
-step "LIBERO-PRO view_occlusion: occluder scenes (a bundle per task) and reference episodes for their parity test"
-# Each task's scene with the occluder added, the clean init states mapped by joint name
-# (pro_occlusion.py). The tests' sample is always built (2 bundles, ~1 min on 2 cores); all 40
-# with --suites libero_pro_occlusion (~15 min), or one suite's (libero_goal_view_occlusion);
-# resumable, stamps keyed by the scripts that make them.
-PRO_OCCLUSION_TEST_TASKS="libero_goal/8,libero_10/5"  # keep equal to tests/pro_occlusion.rs TEST_TASKS
-PRO_OCCLUSION="$CACHE/pro-occlusion-$(cat scripts/reference/pro_occlusion.py scripts/reference/pro_robustness_oracle.py \
-  scripts/reference/golden.py | sha256sum | cut -c1-12)"
-pro_occlusion() {
-  (cd scripts/reference && "$VENV/bin/python" pro_occlusion.py "$@" > /dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
-}
-pro_occlusion build "$BUNDLES" --occlusion "$PRO_OCCLUSION" --tasks "$PRO_OCCLUSION_TEST_TASKS"
-if [ -n "$PRO_OCCLUSION_SUITES" ]; then
-  pro_occlusion build "$BUNDLES" --occlusion "$PRO_OCCLUSION" --tasks "$PRO_OCCLUSION_SUITES"
-fi
-PRO_OCCLUSION_GOLDEN="$CACHE/pro-occlusion-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
-  scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/pro_robustness_oracle.py \
-  scripts/reference/pro_occlusion.py | sha256sum | cut -c1-12)"
-if [ ! -f "$PRO_OCCLUSION_GOLDEN/.complete" ]; then
-  rm -rf "$PRO_OCCLUSION_GOLDEN"
-  pro_occlusion golden "$PRO_OCCLUSION_GOLDEN" --occlusion "$PRO_OCCLUSION"
-  touch "$PRO_OCCLUSION_GOLDEN/.complete"
-fi
-ln -sfn "$PRO_OCCLUSION_GOLDEN" data/pro_occlusion_golden
-
-step "LIBERO-Plus layout reference episodes (the tests' sample of layout bundles) for their parity test"
-PLUS_LAYOUT_GOLDEN="$CACHE/plus-layout-golden-$(cat scripts/setup/reference_venv.sh scripts/reference/build_bundles.py \
-  scripts/reference/libero_ref.py scripts/reference/golden.py scripts/reference/plus_layout.py \
-  scripts/reference/liberoplus_variants.py | sha256sum | cut -c1-12)"
-if [ ! -f "$PLUS_LAYOUT_GOLDEN/.complete" ]; then
-  rm -rf "$PLUS_LAYOUT_GOLDEN"
-  (cd scripts/reference && "$VENV/bin/python" plus_layout.py golden "$PLUS_LAYOUT_GOLDEN" --layout "$PLUS_LAYOUT" \
-    --per-suite "$PLUS_LAYOUT_TEST_PER_SUITE" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
-  touch "$PLUS_LAYOUT_GOLDEN/.complete"
-fi
-ln -sfn "$PLUS_LAYOUT_GOLDEN" data/plus_layout_golden
 
 step "reference camera frames for the render-parity tests (MuJoCo 3.3.7, and 3.2.3 for the published look)"
 VENV323_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh | sha256sum | cut -c1-12)
@@ -350,6 +366,14 @@ if [ ! -f "$FRAMES/.complete" ]; then
   touch "$FRAMES/.complete"
 fi
 ln -sfn "$FRAMES" data/frames
+
+step "waiting for the perturbation reference data"
+wait "$PERTURBATION_PID" || true
+cat "$CACHE/setup-perturbation.log"
+if [ "$(cat "$CACHE/setup-perturbation.rc" 2>/dev/null)" != 0 ]; then
+  echo "the perturbation reference data failed (log above, also in $CACHE/setup-perturbation.log)" >&2
+  exit 1
+fi
 
 step "waiting for the ALOHA-sim bundle"
 wait "$ALOHA_PID" || true

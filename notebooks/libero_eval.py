@@ -28,7 +28,7 @@
 # | `LIBERO_OUTPUTS` | outputs folder: `smoke/*.png`, `results.csv` (`pipeline results --out`), `failure_modes.csv`, `failures/*.mp4` | `outputs` |
 # | `LIBERO_BASELINE_RUNS` | comma-separated run folders of the `random` / `lift` baselines (step 10) | none |
 #
-# Run it headless (this is what `cargo test --release --test notebook` does):
+# Run it headless (this is what `cargo test --release --test e2e notebook::` does):
 #
 # ```bash
 # LIBERO_RUN=runs/expert .nb-venv/bin/jupytext --to ipynb --execute notebooks/libero_eval.py

@@ -13,15 +13,13 @@
 //! Needs the venv of `scripts/setup/openvla_ref_venv.sh`: `$LIBERO_OPENVLA_VENV`, else
 //! `<repo>/.openvla-venv`. Fails, never skips, when neither exists.
 
-use crate::tiny_reference::{max_abs_diff, npy};
+use crate::tiny_reference::{self, max_abs_diff, npy};
 use libero_policies::models::openvla::oft::{self, OftModel, OftQuery};
 use libero_policies::models::torch_save::read_state_dict;
 use libero_policies::postprocess::Gripper;
 use libero_policies::preprocess::RgbImage;
 use std::path::{Path, PathBuf};
 use tch::{Kind, Tensor};
-
-use crate::tiny_reference;
 
 fn build_reference() -> PathBuf {
     tiny_reference::build("oft_tiny.py")

@@ -10,12 +10,10 @@
 //! Needs the venv of `scripts/setup/openvla_ref_venv.sh`: `$LIBERO_OPENVLA_VENV`, else
 //! `<repo>/.openvla-venv`. Fails, never skips, when neither exists.
 
-use crate::tiny_reference::{max_abs_diff, npy};
+use crate::tiny_reference::{self, max_abs_diff, npy};
 use libero_policies::models::openvla::{Fusion, OpenVlaModel};
 use libero_policies::preprocess::RgbImage;
 use std::path::PathBuf;
-
-use crate::tiny_reference;
 
 fn build_reference() -> PathBuf {
     tiny_reference::build("openvla_tiny.py")

@@ -2,7 +2,8 @@
 oracle venv (scripts/setup/aloha_ref_venv.sh: dm-control 1.0.34, mujoco 3.3.7, numpy 1.26.4).
 
 OUT/
-  assets/               the two joint-space task XMLs, scene.xml, vx300s_*.xml and the STLs they reference,
+  assets/               the two joint-space task XMLs and their end-effector twins (mocap-welded grippers, where
+                        the Rust scripted control records ACT's scripts), scene.xml, vx300s_*.xml and the STLs they reference,
                         byte-identical to the wheel's (the Rust env compiles these files; nothing is generated)
   provenance.json       the wheel (version, sha256), the oracle's versions, the control arithmetic, the sha256
                         of every file above and below (libero_sim::aloha::AlohaBundle checks them on open)
@@ -105,7 +106,9 @@ def copy_assets(wheel_bytes, out):
     import io
     z = zipfile.ZipFile(io.BytesIO(wheel_bytes))
     prefix = "gym_aloha/assets/"
-    todo = [xml for xml, _ in TASKS.values()]
+    # the joint-space scenes, and their end-effector twins (mocap-welded grippers) that the Rust
+    # scripted control records ACT's scripts in
+    todo = [xml for xml, _ in TASKS.values()] + [f"bimanual_viperx_end_effector_{t}.xml" for t in TASKS]
     done = {}
     while todo:
         name = todo.pop()

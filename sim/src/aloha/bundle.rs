@@ -5,8 +5,9 @@
 //!
 //! ```text
 //! data/aloha/
-//!   assets/               the two joint-space task XMLs, scene.xml, vx300s_*.xml and the STLs they
-//!                         use, byte-identical to the wheel's (compiled as they are: no generated XML)
+//!   assets/               the two joint-space task XMLs, their end-effector twins (the scripted
+//!                         control's), scene.xml, vx300s_*.xml and the STLs they use, byte-identical
+//!                         to the wheel's (compiled as they are: no generated XML)
 //!   provenance.json       the wheel's sha256, the oracle's versions, the sha256 of every file here
 //!   reference_model.json  per task, the oracle's compiled model (sizes, options, parameter arrays)
 //!   init_poses.json       per task and protocol seed, the qpos[16..] numpy drew
@@ -107,6 +108,12 @@ impl AlohaBundle {
     /// The task's scene file, to compile.
     pub fn scene_path(&self, task: AlohaTask) -> PathBuf {
         self.dir.join("assets").join(task.scene_file())
+    }
+
+    /// The task's end-effector scene (mocap-welded grippers), which the scripted positive control
+    /// records its joint trajectories in.
+    pub fn end_effector_scene_path(&self, task: AlohaTask) -> PathBuf {
+        self.dir.join("assets").join(task.end_effector_scene_file())
     }
 
     /// The oracle's compiled model of `task` (MuJoCo 3.3.7 through dm_control), for parity checks.

@@ -12,8 +12,9 @@
 //! - [`reward`]: the 0–4 reward from ordered contact pairs;
 //! - [`env`]: [`AlohaEnv`], reset, the 50 Hz step (dm_control's substep sequence) and the `top`
 //!   camera;
-//! - [`scripted`]: [`ScriptedPlan`], the positive control: both tasks solved by a joint-space plan
-//!   (inverse kinematics of ACT's scripted waypoints) made from the initial object poses.
+//! - [`scripted`]: the positive control: ACT's scripted policies recorded in the end-effector
+//!   scene with a stiffened weld ([`ScriptRecorder`]), replayed as joint targets
+//!   ([`ScriptedPlan`]) in the unmodified joint-space env.
 //!
 //! ```no_run
 //! use libero_sim::aloha::{AlohaBundle, AlohaEnv, AlohaTask, START_ARM_POSE};
@@ -38,5 +39,5 @@ pub use bundle::AlohaBundle;
 pub use control::{ACTION_DIM, START_ARM_POSE};
 pub use env::AlohaEnv;
 pub use reward::MAX_REWARD;
-pub use scripted::ScriptedPlan;
+pub use scripted::{ScriptRecorder, ScriptedPlan};
 pub use task::AlohaTask;

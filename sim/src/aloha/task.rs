@@ -56,6 +56,16 @@ impl AlohaTask {
         }
     }
 
+    /// The end-effector twin of [`scene_file`](Self::scene_file) (ACT's `*_ee` envs: the same
+    /// scene with a mocap body welded to each gripper and only the 4 finger actuators), which the
+    /// scripted positive control drives ([`super::scripted`]); gym-aloha ships it but cannot run it.
+    pub fn end_effector_scene_file(self) -> &'static str {
+        match self {
+            AlohaTask::TransferCube => "bimanual_viperx_end_effector_transfer_cube.xml",
+            AlohaTask::Insertion => "bimanual_viperx_end_effector_insertion.xml",
+        }
+    }
+
     /// Free-jointed objects after the 16 arm joints: the cube; or the peg, then the socket.
     pub fn objects(self) -> usize {
         match self {

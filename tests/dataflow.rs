@@ -433,6 +433,7 @@ fn synthetic_run() -> PathBuf {
         stop_on_success: false,
         substeps_per_step: 25,
         control_freq_hz: 20,
+        env: libero_schema::Benchmark::Libero,
     };
     std::fs::write(d.join("manifest.json"), serde_json::to_vec(&manifest).unwrap()).unwrap();
     d

@@ -3,6 +3,7 @@
 //! module); each module's file lies beside this one.
 //! Modules share the process: each test writes under its own `test_dir(<module>, <case>)`.
 
+mod aloha_run;
 mod bundles;
 mod cli;
 mod cloud_store;

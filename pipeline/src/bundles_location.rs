@@ -25,6 +25,21 @@ pub fn resolve(explicit: Option<&Path>) -> Result<PathBuf> {
     )
 }
 
+/// The ALOHA-sim bundle folder: `explicit` when given, else `data/aloha` under the working
+/// directory, else that of the checkout this binary was built in (`AlohaBundle::open` names the
+/// set-up command when it is not there).
+pub fn resolve_aloha(explicit: Option<&Path>) -> PathBuf {
+    if let Some(p) = explicit {
+        return p.to_path_buf();
+    }
+    let here = PathBuf::from(libero_sim::aloha::bundle::DEFAULT_DIR);
+    if here.join("provenance.json").is_file() {
+        return here;
+    }
+    let built_in = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(libero_sim::aloha::bundle::DEFAULT_DIR);
+    built_in.canonicalize().unwrap_or(built_in)
+}
+
 fn candidates() -> Vec<PathBuf> {
     let mut out = vec![PathBuf::from("data/bundles")];
     // the checkout this binary was built from (pipeline/.. = the repository root)

@@ -14,8 +14,10 @@ use datafusion::datasource::MemTable;
 use datafusion::prelude::SessionContext;
 use indicatif::{ProgressBar, ProgressStyle};
 use libero_policies::PolicySpec;
+use libero_schema::benchmark::{ALOHA_SUITE, aloha as aloha_protocol};
 use libero_schema::protocol::{CONTROL_FREQ_HZ, NUM_STEPS_WAIT, SUBSTEPS_PER_STEP};
-use libero_schema::{InstructionSource, RunManifest, Suite, tables};
+use libero_schema::{Benchmark, InstructionSource, RunManifest, Suite, tables};
+use libero_sim::aloha::AlohaBundle;
 use libero_sim::bundle::BundleSet;
 use libero_udfs::compaction;
 use libero_udfs::rollout::{RolloutContext, RunProtocol, rollout_udf};
@@ -49,8 +51,8 @@ pub struct Args {
     ///     the 8-D state, default off for HEAD, on for the older one)
     #[arg(long, verbatim_doc_comment)]
     policy: PolicySpec,
-    /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400);
-    /// at least 1.
+    /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400;
+    /// ALOHA-sim: lerobot's 400, where gym-aloha's registration and openpi use 300); at least 1.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     max_steps: Option<u32>,
     /// Wait steps before the policy acts.
@@ -85,6 +87,9 @@ pub struct Args {
     /// at the same path (without it such a run is refused: use an object store).
     #[arg(long)]
     shared_filesystem: bool,
+    /// The ALOHA-sim bundle, for a spec table of suite aloha_sim (default: data/aloha).
+    #[arg(long)]
+    aloha_bundle: Option<PathBuf>,
     /// Tests only: every episode sleeps this long first (to kill an executor mid-run).
     #[arg(long, hide = true, default_value_t = 0)]
     test_episode_delay_ms: u64,
@@ -93,8 +98,25 @@ pub struct Args {
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
     // A scheduler that does not answer stops the run before anything is read or written.
     tokio::runtime::Runtime::new()?.block_on(args.engine.engine.check())?;
-    let set = Arc::new(BundleSet::open(bundles)?);
-    let specs = specs::load_specs(&args.specs, &set)?;
+    let raw = specs::read_spec_file(&args.specs)?;
+    let benchmark = specs::spec_benchmark(&raw, &args.specs.display().to_string())?;
+    if let Err(e) = args.policy.check_benchmark(benchmark) {
+        bail!("spec file {}: {e}. No episode was started.", args.specs.display());
+    }
+    let (set, aloha) = match benchmark {
+        Benchmark::Libero => (Arc::new(BundleSet::open(bundles)?), None),
+        Benchmark::AlohaSim => {
+            if !matches!(args.engine.engine, Engine::Local) {
+                bail!(
+                    "spec file {}: ALOHA-sim episodes run on the local engine only (the cluster's executors load LIBERO bundles); drop --engine",
+                    args.specs.display()
+                );
+            }
+            let dir = crate::bundles_location::resolve_aloha(args.aloha_bundle.as_deref());
+            (Arc::new(BundleSet::none(bundles)), Some(Arc::new(AlohaBundle::open(&dir)?)))
+        }
+    };
+    let specs = specs::validate(raw, &set, &args.specs.display().to_string())?;
     if let Some(row) = specs.first_camera_row
         && !args.policy.sees_cameras()
         && !args.allow_unseen_perturbations
@@ -115,8 +137,10 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     }
     let max_steps: BTreeMap<Suite, u32> =
         tasks.iter().map(|(s, _)| (*s, args.max_steps.unwrap_or_else(|| s.max_steps()))).collect();
+    let aloha_max_steps = args.max_steps.unwrap_or(aloha_protocol::LEROBOT_MAX_STEPS);
     let protocol = RunProtocol {
         max_steps,
+        aloha_max_steps,
         num_steps_wait: args.wait_steps,
         stop_on_success: args.stop_on_success,
         instruction_source: args.instruction,
@@ -129,15 +153,28 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         pipeline_version: env!("CARGO_PKG_VERSION").to_string(),
         mujoco_version: libero_sim::mujoco_version(),
         bundle_format_version: libero_schema::bundle_format::BUNDLE_FORMAT_VERSION,
-        bundles_hash: bundles_hash(&set, specs.keys.iter().map(|k| (k.suite.as_str(), k.task_id)))?,
+        bundles_hash: match &aloha {
+            None => bundles_hash(&set, specs.keys.iter().map(|k| (k.suite.as_str(), k.task_id)))?,
+            Some(b) => format!("{:x}", Sha256::digest(b.provenance.to_string().as_bytes())),
+        },
         policy: args.policy.name(),
         policy_identity: args.policy.resolve_identity()?,
         num_steps_wait: args.wait_steps as i32,
-        max_steps: protocol.max_steps.iter().map(|(s, n)| (s.name(), *n as i32)).collect(),
+        max_steps: match benchmark {
+            Benchmark::Libero => protocol.max_steps.iter().map(|(s, n)| (s.name(), *n as i32)).collect(),
+            Benchmark::AlohaSim => BTreeMap::from([(ALOHA_SUITE.to_string(), aloha_max_steps as i32)]),
+        },
         instruction_source: args.instruction,
         stop_on_success: args.stop_on_success,
-        substeps_per_step: SUBSTEPS_PER_STEP as i32,
-        control_freq_hz: CONTROL_FREQ_HZ as i32,
+        substeps_per_step: match benchmark {
+            Benchmark::Libero => SUBSTEPS_PER_STEP as i32,
+            Benchmark::AlohaSim => aloha_protocol::SUBSTEPS_PER_STEP,
+        },
+        control_freq_hz: match benchmark {
+            Benchmark::Libero => CONTROL_FREQ_HZ as i32,
+            Benchmark::AlohaSim => aloha_protocol::CONTROL_FREQ_HZ,
+        },
+        env: benchmark,
     };
     manifest.run_config = hex16(&Sha256::digest(manifest.config_fingerprint().as_bytes()));
 
@@ -203,7 +240,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             // While this runs, `pipeline compact` refuses the run (compaction::WriterLock).
             let lock = compaction::WriterLock::this_process(now_rfc3339());
             store.put("writer.json", serde_json::to_vec(&lock)?.into()).await?;
-            let ran = run_pending(&args, &set, &specs, &manifest, &store, &protocol, &tasks, pending).await;
+            let ran = run_pending(&args, &set, aloha.as_ref(), &specs, &manifest, &store, &protocol, &tasks, pending).await;
             store.delete_if_present("writer.json").await?;
             ran?;
         }
@@ -273,9 +310,11 @@ fn check_noise_sizes(args: &Args, specs: &specs::Specs) -> Result<()> {
 
 /// Run the pending episodes through the rollout UDF, then record what this invocation did.
 #[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments)]
 async fn run_pending(
     args: &Args,
     set: &Arc<BundleSet>,
+    aloha: Option<&Arc<AlohaBundle>>,
     specs: &specs::Specs,
     manifest: &RunManifest,
     store: &RunStore,
@@ -288,7 +327,7 @@ async fn run_pending(
             .progress_chars("=> "),
     );
     progress.set_message("success 0/0");
-    let ctx = Arc::new(RolloutContext::new(
+    let mut ctx = RolloutContext::new(
         set.clone(),
         args.policy.clone(),
         protocol.clone(),
@@ -297,7 +336,11 @@ async fn run_pending(
         store.clone(),
         tokio::runtime::Handle::current(),
         progress.clone(),
-    ));
+    );
+    if let Some(b) = aloha {
+        ctx = ctx.with_aloha(b.clone());
+    }
+    let ctx = Arc::new(ctx);
     let n_pending = pending.len();
     #[cfg(feature = "distributed")]
     let pending_parts: std::collections::HashSet<String> =
@@ -440,6 +483,7 @@ async fn write_manifest(store: &RunStore, m: &RunManifest) -> Result<()> {
             i(m.substeps_per_step),
             i(m.control_freq_hz),
             s(m.instruction_source.name()),
+            s(m.env.name()),
         ],
     )?;
     store.put("manifest.parquet", parquet_bytes(&batch, Some(&serde_json::to_string(m)?))?).await

@@ -260,7 +260,11 @@ pub async fn open_on(
             store.url()
         );
     }
-    register_listing(&ctx, &store, "steps", tables::steps(), &skip).await?;
+    let steps_schema = match manifest.env {
+        libero_schema::Benchmark::Libero => tables::steps(),
+        libero_schema::Benchmark::AlohaSim => tables::aloha_steps(),
+    };
+    register_listing(&ctx, &store, "steps", steps_schema, &skip).await?;
     register_listing(&ctx, &store, "episodes", Arc::new(arrow::datatypes::Schema::new(episode_fields)), &skip).await?;
     if store.get("manifest.parquet").await?.is_some() {
         ctx.register_parquet("manifest", store.table_url("manifest.parquet"), ParquetReadOptions::default()).await?;
@@ -268,7 +272,11 @@ pub async fn open_on(
     let evidence = if manifest.tables_version >= 3 { Evidence::GoalChanges } else { Evidence::Steps };
     define_scored(&ctx, success, cap, evidence).await?;
     // Views only: nothing is computed until a query reads them.
-    queries::run(&ctx, queries::FAILURE_MODES).await?;
+    // LIBERO's failure modes read its steps' end-effector, contacts and goal terms; ALOHA-sim's
+    // are not written yet (`pipeline failures` says so)
+    if manifest.env == libero_schema::Benchmark::Libero {
+        queries::run(&ctx, queries::FAILURE_MODES).await?;
+    }
     queries::define_views(&ctx, queries::ROBUSTNESS).await?;
     Ok((ctx, store))
 }
@@ -310,7 +318,13 @@ pub async fn counts_any(ctx: &SessionContext, count_query: &str) -> Result<bool>
 }
 
 pub async fn materialize(ctx: &SessionContext, view: &str) -> Result<Vec<arrow::record_batch::RecordBatch>> {
-    let df = ctx.table(view).await.with_context(|| format!("no view {view}"))?;
+    let df = ctx.table(view).await.with_context(|| {
+        if view == queries::FAILURE_MODES {
+            "no view failure_modes: ALOHA-sim runs have no failure modes yet (queries/failure_modes.sql reads LIBERO's steps); `pipeline results` scores them".to_string()
+        } else {
+            format!("no view {view}")
+        }
+    })?;
     if is_distributed(ctx) {
         // A cluster's plans cannot carry in-memory tables: the view stays, and is derived again
         // by the queries that read it.

@@ -1,8 +1,10 @@
-//! Spec tables: `pipeline specs` writes the canonical protocol's, and [`load_specs`] reads and
-//! validates any Parquet file with the spec columns before a single episode starts.
+//! Spec tables: `pipeline specs` writes the canonical protocol's, and [`read_spec_file`] and
+//! [`validate`] read and validate any Parquet file with the spec columns before a single episode starts.
 //!
 //! A spec row is one episode: `suite, task_id, init_state_id, seed` (plus any other columns,
-//! carried through to the episode rows). Validation names every offending row: missing columns,
+//! carried through to the episode rows). Suite `aloha_sim` makes it an ALOHA-sim episode (task 0
+//! transfer_cube, 1 insertion; the seed places the objects, `init_state_id` is the episode's
+//! index); a spec table is of one benchmark. Validation names every offending row: missing columns,
 //! nulls, unknown suites or tasks, init states or seeds the bundles do not have, duplicate keys,
 //! extra columns whose names collide with the stored episode columns, and perturbation columns
 //! ([`libero_udfs::perturbation`]) of the wrong type or out of range.
@@ -83,6 +85,9 @@ pub struct Args {
     /// error that says so.
     #[arg(long, value_delimiter = ',')]
     cases: Vec<String>,
+    /// aloha_sim: episode i of a task is seeded FIRST_SEED + i (lerobot's evaluation: 1000).
+    #[arg(long, default_value_t = libero_schema::benchmark::aloha::LEROBOT_FIRST_SEED)]
+    first_seed: i64,
 }
 
 /// The benchmarks `pipeline specs` writes spec tables for.
@@ -95,9 +100,16 @@ enum Benchmark {
     /// --seeds apply), with unperturbed base rows of the same (task, init state, seed).
     #[value(alias = "libero_pro_robustness")]
     LiberoProRobustness,
+    /// ALOHA-sim (suite aloha_sim): --trials episodes per task (lerobot: 50), episode i seeded
+    /// --first-seed + i (lerobot's 1000 + i); --tasks picks 0 transfer_cube, 1 insertion.
+    #[value(alias = "aloha_sim")]
+    AlohaSim,
 }
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
+    if args.benchmark == Benchmark::AlohaSim {
+        return write_specs(&aloha_spec_batch(&args)?, &args.out);
+    }
     if args.benchmark == Benchmark::LiberoProRobustness {
         let opts = crate::libero_pro_robustness::RobustnessOptions {
             suites: &args.suites,
@@ -168,6 +180,43 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     write_specs(&batch, &args.out)
 }
 
+/// lerobot's ALOHA-sim protocol as spec rows: per task, episode i seeded `first_seed + i`.
+fn aloha_spec_batch(args: &Args) -> Result<RecordBatch> {
+    use libero_sim::aloha::AlohaTask;
+    let tasks: Vec<AlohaTask> = if args.tasks.is_empty() {
+        AlohaTask::ALL.to_vec()
+    } else {
+        args.tasks
+            .iter()
+            .map(|&t| {
+                AlohaTask::from_id(t as i64).with_context(|| {
+                    format!("ALOHA-sim has no task {t}; its tasks are 0 transfer_cube and 1 insertion")
+                })
+            })
+            .collect::<Result<_>>()?
+    };
+    let (mut suite, mut task, mut init, mut seed) = (vec![], vec![], vec![], vec![]);
+    for t in tasks {
+        for i in 0..args.trials {
+            suite.push(libero_schema::benchmark::ALOHA_SUITE);
+            task.push(t.id());
+            init.push(i as i32);
+            seed.push(args.first_seed + i as i64);
+        }
+    }
+    let schema =
+        Arc::new(Schema::new(SPEC_COLUMNS.iter().map(|(n, t)| Field::new(*n, t.clone(), false)).collect::<Vec<_>>()));
+    Ok(RecordBatch::try_new(
+        schema,
+        vec![
+            Arc::new(StringArray::from(suite)),
+            Arc::new(Int32Array::from(task)),
+            Arc::new(Int32Array::from(init)),
+            Arc::new(Int64Array::from(seed)),
+        ],
+    )?)
+}
+
 fn write_specs(batch: &RecordBatch, out: &Path) -> Result<()> {
     let bytes = libero_udfs::run_store::parquet_bytes(batch, None)?;
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -189,16 +238,100 @@ pub struct Specs {
     pub first_camera_row: Option<usize>,
 }
 
-/// Read a spec Parquet file and validate every row against the bundles.
-pub fn load_specs(path: &Path, bundles: &BundleSet) -> Result<Specs> {
+/// The one benchmark of a spec table's rows (LIBERO for a table without rows or a suite column,
+/// which validation then refuses): a run is of one benchmark, since their steps tables differ.
+pub fn spec_benchmark(raw: &RecordBatch, source: &str) -> Result<libero_schema::Benchmark> {
+    use arrow::array::Array;
+    use libero_schema::Benchmark;
+    let Some(column) = raw.column_by_name("suite") else { return Ok(Benchmark::Libero) };
+    let Ok(column) = arrow::compute::cast(column, &DataType::Utf8) else { return Ok(Benchmark::Libero) };
+    let suite = column.as_string::<i32>();
+    let mut first: Option<(usize, Benchmark)> = None;
+    for r in (0..suite.len()).filter(|&r| !suite.is_null(r)) {
+        let b = Benchmark::of_suite(suite.value(r));
+        match first {
+            None => first = Some((r, b)),
+            Some((r0, b0)) if b0 != b => bail!(
+                "spec file {source} mixes benchmarks: row {r0} is {b0} (suite {:?}), row {r} is {b} (suite {:?}); a run is of one benchmark (their steps tables differ): split the table and run each. No episode was started.",
+                suite.value(r0),
+                suite.value(r)
+            ),
+            Some(_) => {}
+        }
+    }
+    Ok(first.map(|(_, b)| b).unwrap_or(Benchmark::Libero))
+}
+
+/// Validate the rows of an ALOHA-sim spec (suite `aloha_sim`): `task_id` 0 (transfer_cube) or 1
+/// (insertion), `seed` numpy's `RandomState` takes (0 ..= 2^32 − 1), `init_state_id` ≥ 0 (the
+/// episode's index: it names the episode, the seed places the objects), no duplicate keys, and no
+/// LIBERO perturbation column (they edit LIBERO scenes; ALOHA-sim has none).
+fn validate_aloha(batch: RecordBatch, extras: Vec<String>, source: &str) -> Result<Specs> {
+    use arrow::array::Array;
+    use libero_sim::aloha::AlohaTask;
+    let reserved = libero_udfs::perturbation::reserved_columns();
+    let libero_only: Vec<&String> = extras.iter().filter(|c| reserved.contains(&c.as_str())).collect();
+    if !libero_only.is_empty() {
+        bail!(
+            "spec file {source}: column(s) {libero_only:?} are LIBERO perturbation columns, and its rows are ALOHA-sim's (suite aloha_sim), which has no perturbations; drop them. No episode was started."
+        );
+    }
+    let suite = batch.column(0).as_string::<i32>();
+    let task = batch.column(1).as_primitive::<Int32Type>();
+    let init = batch.column(2).as_primitive::<Int32Type>();
+    let seed = batch.column(3).as_primitive::<Int64Type>();
+    let mut problems = Vec::new();
+    let mut keys = Vec::with_capacity(batch.num_rows());
+    let mut first_row: HashMap<String, usize> = HashMap::new();
+    for r in 0..batch.num_rows() {
+        if suite.is_null(r) || task.is_null(r) || init.is_null(r) || seed.is_null(r) {
+            problems.push(format!("row {r}: a key column is null"));
+            continue;
+        }
+        let row = format!(
+            "row {r} (suite aloha_sim, task_id {}, init_state_id {}, seed {})",
+            task.value(r),
+            init.value(r),
+            seed.value(r)
+        );
+        if AlohaTask::from_id(task.value(r) as i64).is_none() {
+            problems.push(format!(
+                "{row}: ALOHA-sim has no task_id {}; its tasks are 0 transfer_cube and 1 insertion",
+                task.value(r)
+            ));
+        }
+        if u32::try_from(seed.value(r)).is_err() {
+            problems.push(format!(
+                "{row}: the seed places the objects through numpy's RandomState, which takes 0..=4294967295 (lerobot's episode i is 1000 + i)"
+            ));
+        }
+        if init.value(r) < 0 {
+            problems.push(format!("{row}: init_state_id (the episode index) must be ≥ 0"));
+        }
+        let key = EpisodeKey::new(suite.value(r), task.value(r), init.value(r), seed.value(r));
+        if let Some(prev) = first_row.insert(key.episode_key.clone(), r) {
+            problems.push(format!("{row}: duplicate episode key {} (first at row {prev})", key.episode_key));
+        }
+        keys.push(key);
+    }
+    if !problems.is_empty() {
+        let n = problems.len();
+        let shown: Vec<String> = problems.into_iter().take(20).collect();
+        let more = if n > 20 { format!("\n  ... and {} more", n - 20) } else { String::new() };
+        bail!("spec file {source} has {n} problem(s); no episode was started:\n  {}{more}", shown.join("\n  "));
+    }
+    Ok(Specs { batch, keys, extras, first_camera_row: None })
+}
+
+/// A spec Parquet file as one batch, unvalidated.
+pub fn read_spec_file(path: &Path) -> Result<RecordBatch> {
     let file = std::fs::File::open(path).with_context(|| format!("cannot open the spec file {}", path.display()))?;
     let reader = parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder::try_new(file)
         .with_context(|| format!("{} is not a Parquet file", path.display()))?
         .build()?;
     let schema = arrow::record_batch::RecordBatchReader::schema(&reader);
     let batches: Vec<RecordBatch> = reader.collect::<Result<_, _>>()?;
-    let raw = arrow::compute::concat_batches(&schema, &batches)?;
-    validate(raw, bundles, &path.display().to_string())
+    Ok(arrow::compute::concat_batches(&schema, &batches)?)
 }
 
 /// Validate a spec batch (see the module doc); `source` names it in errors.
@@ -250,6 +383,9 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
     }
     let batch = RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)?;
 
+    if spec_benchmark(&batch, source)? == libero_schema::Benchmark::AlohaSim {
+        return validate_aloha(batch, extras, source);
+    }
     let extras_batch = batch.project(&(SPEC_COLUMNS.len()..batch.num_columns()).collect::<Vec<_>>())?;
     let suite = batch.column(0).as_string::<i32>();
     let task = batch.column(1).as_primitive::<Int32Type>();

@@ -14,6 +14,7 @@
 //! | in-process model ports on libtorch: TorchScript, OpenVLA, OpenVLA-OFT | `models` (feature `torch`) |
 //! | clients of policy servers: openpi, vla-eval, starVLA | [`remote`] |
 //! | policies without a model: baselines, the privileged scripted [`Expert`] | `baselines.rs`, `expert/`, [`scene`] |
+//! | ALOHA-sim's seam (14-D joint actions) and its policies: [`aloha::AlohaPolicy`] | [`aloha`] |
 //!
 //! A new model port goes under `models/`, a new server protocol under `remote/`; both reuse the
 //! transforms and the drivers, and get a [`PolicySpec`] kind.
@@ -32,6 +33,7 @@
 //! assert_eq!(action[2], 0.05);
 //! ```
 
+pub mod aloha;
 mod baselines;
 pub mod batching;
 pub mod chunking;

@@ -148,6 +148,39 @@ impl PolicySpec {
         })
     }
 
+    /// A fresh instance for one rollout worker of an ALOHA-sim run; kinds without an ALOHA form
+    /// are refused by [`check_benchmark`](Self::check_benchmark) before any episode.
+    pub fn instantiate_aloha(&self) -> Result<Box<dyn crate::aloha::AlohaPolicy>, PolicyError> {
+        use crate::aloha::{NanAtAloha, RandomWalkAloha, ScriptedAloha};
+        Ok(match self {
+            PolicySpec::Random => Box::new(RandomWalkAloha::new()),
+            PolicySpec::Expert => Box::new(ScriptedAloha),
+            PolicySpec::NanAt(n) => Box::new(NanAtAloha::new(*n)),
+            _ => {
+                return Err(PolicyError {
+                    policy: self.to_string(),
+                    detail: self.check_benchmark(libero_schema::Benchmark::AlohaSim).unwrap_err(),
+                });
+            }
+        })
+    }
+
+    /// Whether this policy can act on `benchmark`: a LIBERO policy sends 7-D end-effector deltas,
+    /// an ALOHA-sim env takes 14-D joint targets. Checked before a run starts.
+    pub fn check_benchmark(&self, benchmark: libero_schema::Benchmark) -> Result<(), String> {
+        use libero_schema::Benchmark;
+        match benchmark {
+            Benchmark::Libero => Ok(()),
+            Benchmark::AlohaSim => match self {
+                PolicySpec::Random | PolicySpec::Expert | PolicySpec::NanAt(_) => Ok(()),
+                _ => Err(format!(
+                    "the policy {self} acts in LIBERO's 7-D end-effector space, and ALOHA-sim (suite aloha_sim) takes {}-D joint actions (per arm 6 joint targets and a gripper); on ALOHA-sim run expert (the scripted control), random or nan-at:N",
+                    Benchmark::AlohaSim.action_dim()
+                )),
+            },
+        }
+    }
+
     /// Short name stored in every episode row.
     pub fn name(&self) -> String {
         self.to_string()

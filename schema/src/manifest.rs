@@ -31,6 +31,15 @@ pub struct RunManifest {
     pub stop_on_success: bool,
     pub substeps_per_step: i32,
     pub control_freq_hz: i32,
+    /// The run's simulated benchmark (`libero`, `aloha_sim`): which steps table its parts hold.
+    /// Runs made before tables v7 were all LIBERO. Stored as `env`, since a spec table's own
+    /// `benchmark` column (LIBERO-Plus, LIBERO-PRO robustness) names the protocol of its rows.
+    #[serde(default = "libero")]
+    pub env: crate::Benchmark,
+}
+
+fn libero() -> crate::Benchmark {
+    crate::Benchmark::Libero
 }
 
 fn bddl_before_format_3() -> crate::InstructionSource {
@@ -54,6 +63,7 @@ impl RunManifest {
             "stop_on_success": self.stop_on_success,
             "substeps_per_step": self.substeps_per_step,
             "control_freq_hz": self.control_freq_hz,
+            "env": self.env,
         })
         .to_string()
     }

@@ -2,7 +2,8 @@
 //!
 //! A run directory holds:
 //! - `specs.parquet`: the spec table the run was started with (every column, carried through);
-//! - `steps/<episode>.parquet`: one part per episode, one row per env step ([`steps`]);
+//! - `steps/<episode>.parquet`: one part per episode, one row per env step ([`steps`]; an
+//!   ALOHA-sim run's: [`aloha_steps`]);
 //! - `episodes/<episode>.parquet`: one part per episode, one row ([`episodes`]) plus the spec's
 //!   extra columns; its presence marks the episode finished (written after its steps part);
 //! - `manifest.json` / `manifest.parquet`: the run manifest ([`manifest`]), also stored as Parquet
@@ -17,7 +18,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, LazyLock};
 
 /// Version of the step/episode/manifest layout; stored in every manifest and part.
-pub const TABLES_VERSION: u32 = 6;
+pub const TABLES_VERSION: u32 = 7;
 /// Arrow field-metadata key holding a field's documentation.
 pub const DOC_KEY: &str = "doc";
 /// Parquet key-value metadata key holding the run manifest (JSON) in every part.
@@ -116,40 +117,87 @@ pub fn steps() -> SchemaRef {
                 false,
                 "objects/fixtures touching a gripper geom after the step (grasp evidence for failure analysis)",
             ),
-            field("sim_ms", DataType::Float32, false, "wall time of the env step (ms)"),
-            field("policy_ms", DataType::Float32, false, "wall time of the policy call that produced the action (ms); 0 for wait steps"),
-            field(
-                "render_ms",
-                DataType::Float32,
-                true,
-                "wall time rendering the policy's cameras before this step (ms); 0 when it saw none; null in runs before tables v5",
-            ),
-            field(
-                "queue_ms",
-                DataType::Float32,
-                true,
-                "batched model policies: time the step's query waited for its forward to start (ms); null where the step queried no timed model (a queued chunk action, an unbatched policy)",
-            ),
-            field(
-                "prepare_ms",
-                DataType::Float32,
-                true,
-                "the worker's preparation of the step's model inputs before its query (image preprocessing; ms); null where the model prepares nothing apart",
-            ),
-            field(
-                "forward_ms",
-                DataType::Float32,
-                true,
-                "the model forward that answered (ms, shared by its batch)",
-            ),
-            field(
-                "forward_id",
-                DataType::Int64,
-                true,
-                "sequence number of that forward in the run process: the distinct (forward_id, forward_ms) of one invocation count its forwards",
-            ),
-            field("forward_batch", DataType::Int32, true, "episodes answered by that forward"),
         ]);
+        f.extend(step_timing_fields());
+        Arc::new(Schema::new(f))
+    });
+    S.clone()
+}
+
+/// Where a step's wall time went: the same columns for every benchmark (queries/step_timing.sql).
+fn step_timing_fields() -> Vec<Field> {
+    vec![
+        field("sim_ms", DataType::Float32, false, "wall time of the env step (ms)"),
+        field(
+            "policy_ms",
+            DataType::Float32,
+            false,
+            "wall time of the policy call that produced the action (ms); 0 for wait steps",
+        ),
+        field(
+            "render_ms",
+            DataType::Float32,
+            true,
+            "wall time rendering the policy's cameras before this step (ms); 0 when it saw none; null in runs before tables v5",
+        ),
+        field(
+            "queue_ms",
+            DataType::Float32,
+            true,
+            "batched model policies: time the step's query waited for its forward to start (ms); null where the step queried no timed model (a queued chunk action, an unbatched policy)",
+        ),
+        field(
+            "prepare_ms",
+            DataType::Float32,
+            true,
+            "the worker's preparation of the step's model inputs before its query (image preprocessing; ms); null where the model prepares nothing apart",
+        ),
+        field("forward_ms", DataType::Float32, true, "the model forward that answered (ms, shared by its batch)"),
+        field(
+            "forward_id",
+            DataType::Int64,
+            true,
+            "sequence number of that forward in the run process: the distinct (forward_id, forward_ms) of one invocation count its forwards",
+        ),
+        field("forward_batch", DataType::Int32, true, "episodes answered by that forward"),
+    ]
+}
+
+/// One row per env step of an ALOHA-sim episode (gym-aloha's joint-space tasks; no wait steps).
+pub fn aloha_steps() -> SchemaRef {
+    static S: LazyLock<SchemaRef> = LazyLock::new(|| {
+        let mut f = key_fields();
+        f.extend([
+            field("step", DataType::Int32, false, "env step index from 0"),
+            field("policy_step", DataType::Int32, true, "policy step index from 0 (= step: ALOHA-sim has no wait steps)"),
+            field("is_wait", DataType::Boolean, false, "always false (the column is LIBERO's; kept so step queries read both)"),
+            field(
+                "action",
+                fixed_list(DataType::Float32, 14),
+                false,
+                "action sent to the env: per arm (left, right) 6 absolute joint targets (rad) and a normalized gripper (0 closed … 1 open)",
+            ),
+            field(
+                "agent_pos",
+                fixed_list(DataType::Float64, 14),
+                false,
+                "obs[\"agent_pos\"] after the step: per arm 6 joint positions and the normalized left-finger position",
+            ),
+            field(
+                "object_poses",
+                list(DataType::Struct(object_pose_fields())),
+                false,
+                "pose of every free object after the step (red_box; or red_peg and blue_socket)",
+            ),
+            field("goal", DataType::Boolean, false, "the task is solved after the step: reward 4 (gym-aloha's is_success)"),
+            field(
+                "reward",
+                DataType::Int32,
+                false,
+                "gym-aloha's reward after the step, 0-4, from the contacts: transfer_cube 1 right gripper touches the cube, 2 lifted by it, 3 left gripper touches it, 4 held by the left off the table; insertion 1 both grippers touch their objects, 2 both lifted, 3 peg touches socket, 4 peg touches the pin",
+            ),
+        ]);
+        f.extend(step_timing_fields());
         Arc::new(Schema::new(f))
     });
     S.clone()
@@ -194,7 +242,7 @@ pub fn episodes() -> SchemaRef {
                 "instruction_source",
                 DataType::Utf8,
                 true,
-                "which text `instruction` is: filename (task.language, the published loops' for the LIBERO suites) or bddl (the BDDL (:language ...) tag, LIBERO-PRO's); `pipeline run --instruction`. Null before tables v4 (bddl then)",
+                "which text `instruction` is: filename (task.language, the published loops' for the LIBERO suites) or bddl (the BDDL (:language ...) tag, LIBERO-PRO's); `pipeline run --instruction`; task for ALOHA-sim (its task's prompt). Null before tables v4 (bddl then)",
             ),
             field(
                 "start_sha256",
@@ -261,6 +309,12 @@ pub fn episodes() -> SchemaRef {
                 true,
                 "Unix time the episode's reset began (s): with wall_s, the span a run's episodes covered; null in runs before tables v5",
             ),
+            field(
+                "env",
+                DataType::Utf8,
+                true,
+                "the simulated benchmark the episode ran in, from its suite: libero (every LIBERO, LIBERO-PRO and LIBERO-Plus suite) or aloha_sim; null in runs before tables v7 (all LIBERO). (A LIBERO-Plus or LIBERO-PRO robustness spec table's own `benchmark` column, carried through, names the protocol that made its rows.)",
+            ),
         ]);
         Arc::new(Schema::new(f))
     });
@@ -297,6 +351,12 @@ pub fn manifest() -> SchemaRef {
                 false,
                 "which instruction text the policy was given: published (the suite's published evaluation's) or bddl",
             ),
+            field(
+                "env",
+                DataType::Utf8,
+                true,
+                "the simulated benchmark of the run: libero or aloha_sim (which steps table its parts hold); null in runs before tables v7 (LIBERO)",
+            ),
         ]))
     });
     S.clone()
@@ -308,7 +368,7 @@ mod tests {
 
     #[test]
     fn every_field_is_documented_and_names_are_unique() {
-        for schema in [steps(), episodes(), manifest()] {
+        for schema in [steps(), aloha_steps(), episodes(), manifest()] {
             let mut names = std::collections::HashSet::new();
             for f in schema.fields() {
                 assert!(names.insert(f.name().clone()), "duplicate field {}", f.name());
@@ -317,8 +377,10 @@ mod tests {
             }
         }
         for (name, dt) in SPEC_COLUMNS {
-            let f = steps().field_with_name(name).unwrap().clone();
-            assert_eq!(f.data_type(), &dt, "{name}");
+            for schema in [steps(), aloha_steps()] {
+                let f = schema.field_with_name(name).unwrap().clone();
+                assert_eq!(f.data_type(), &dt, "{name}");
+            }
         }
     }
 }

@@ -59,6 +59,12 @@ pub struct BundleSet {
 }
 
 impl BundleSet {
+    /// A set with no tasks at `root`: the LIBERO side of a run of another benchmark (ALOHA-sim),
+    /// which needs no LIBERO bundles.
+    pub fn none(root: impl AsRef<Path>) -> Self {
+        BundleSet { root: root.as_ref().to_path_buf(), index: vec![] }
+    }
+
     /// Open the bundle folder; fails with a rebuild hint when it is missing, corrupt, or was made
     /// by another exporter or MuJoCo version.
     pub fn open(root: impl AsRef<Path>) -> Result<Self, SimError> {

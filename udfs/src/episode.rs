@@ -17,7 +17,7 @@ use arrow::buffer::OffsetBuffer;
 use arrow::datatypes::{DataType, Field};
 use libero_policies::{Observation, Policy};
 use libero_schema::protocol::WAIT_ACTION;
-use libero_schema::{InstructionSource, Suite, tables};
+use libero_schema::{Benchmark, InstructionSource, Suite, tables};
 use libero_sim::SimError;
 use libero_sim::env::LiberoEnv;
 use libero_sim::image_noise::SeededDraws;
@@ -415,6 +415,8 @@ pub fn episode_batch(
         Arc::new(Float64Array::from(vec![s.policy_s])),
         Arc::new(Float64Array::from(vec![s.render_s])),
         Arc::new(Float64Array::from(vec![s.started_at])),
+        // `env`
+        Arc::new(StringArray::from(vec![Benchmark::of_suite(&key.suite).name()])),
     ];
     let base = tables::episodes();
     let schema = match extras {

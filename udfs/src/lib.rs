@@ -11,7 +11,8 @@
 //! - [`sample_size`]: `sample_size_two_proportions(p1, p2 [, alpha [, power]])`;
 //! - [`run_store`]: the layout of a run on an object store (parts, manifest, resume, damaged
 //!   parts); [`compaction`]: merging a run's parts into a few large files, crash-safe;
-//! - [`steps_batch`] / [`episode`]: building the Arrow rows of one episode;
+//! - [`steps_batch`] / [`episode`]: building the Arrow rows of one episode; [`aloha_episode`]:
+//!   the same for an ALOHA-sim episode (its own steps table, the same episode row);
 //! - [`goal_evidence`]: the goal's changes per episode (compact re-scoring evidence) and
 //!   `goal_held_at(goal_changes, step)`;
 //! - [`scene_view`] / [`policy_cameras`]: what a policy may see besides proprio: the privileged
@@ -19,6 +20,7 @@
 //!
 //! The only crate besides `pipeline` that joins `sim` and `policies`.
 
+pub mod aloha_episode;
 pub mod compaction;
 pub mod episode;
 pub mod goal_evidence;

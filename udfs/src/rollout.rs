@@ -10,6 +10,7 @@
 //! episode row with `error_kind`/`error` set and the run goes on; only a storage failure stops
 //! the query, since nothing could be recorded.
 
+use crate::aloha_episode::{AlohaWorker, run_aloha_episode};
 use crate::episode::{EpisodeContext, EpisodeError, EpisodeProtocol, EpisodeSummary, episode_batch, run_episode};
 use crate::perturbation::EpisodePerturbation;
 use crate::run_store::{RunStore, parquet_bytes};
@@ -20,8 +21,9 @@ use datafusion::common::{Result, exec_err, plan_err};
 use datafusion::logical_expr::{ColumnarValue, ScalarFunctionArgs, ScalarUDF, ScalarUDFImpl, Signature, Volatility};
 use indicatif::ProgressBar;
 use libero_policies::PolicySpec;
-use libero_schema::Suite;
+use libero_schema::{Benchmark, Suite};
 use libero_sim::SimError;
+use libero_sim::aloha::{AlohaBundle, AlohaTask};
 use libero_sim::bundle::{BundleSet, TaskBundle};
 use libero_sim::env::LiberoEnv;
 use mujoco_rs::prelude::MjModel;
@@ -54,6 +56,8 @@ pub struct RolloutContext {
     successes: AtomicU64,
     finished: AtomicU64,
     tasks: TaskCache,
+    /// The ALOHA-sim bundle, for a run of that benchmark (its spec rows' suite is `aloha_sim`).
+    aloha: Option<Arc<AlohaBundle>>,
 }
 
 /// The protocol settings of a run: what every episode's [`EpisodeProtocol`] is made from.
@@ -61,12 +65,24 @@ pub struct RolloutContext {
 pub struct RunProtocol {
     /// Episode cap in policy steps per suite (a suite not listed gets its published cap).
     pub max_steps: BTreeMap<Suite, u32>,
+    /// ALOHA-sim's episode cap (lerobot's 400 by default; gym-aloha's registration says 300).
+    pub aloha_max_steps: u32,
     pub num_steps_wait: u32,
     pub stop_on_success: bool,
     pub instruction_source: libero_schema::InstructionSource,
 }
 
 impl RunProtocol {
+    /// An ALOHA-sim episode's protocol: no wait steps, the run's ALOHA cap.
+    pub fn aloha_episode(&self) -> EpisodeProtocol {
+        EpisodeProtocol {
+            max_steps: self.aloha_max_steps,
+            num_steps_wait: 0,
+            stop_on_success: self.stop_on_success,
+            instruction_source: self.instruction_source,
+        }
+    }
+
     pub fn episode(&self, suite: Suite) -> EpisodeProtocol {
         EpisodeProtocol {
             max_steps: self.max_steps.get(&suite).copied().unwrap_or_else(|| suite.max_steps()),
@@ -184,7 +200,14 @@ impl RolloutContext {
             successes: AtomicU64::new(0),
             finished: AtomicU64::new(0),
             tasks: TaskCache::default(),
+            aloha: None,
         }
+    }
+
+    /// Run ALOHA-sim's spec rows (suite `aloha_sim`) on this bundle.
+    pub fn with_aloha(mut self, bundle: Arc<AlohaBundle>) -> Self {
+        self.aloha = Some(bundle);
+        self
     }
 
     /// Return the stored outcome of an episode whose part exists instead of running it again, so
@@ -437,8 +460,55 @@ fn run_row(
     if !ctx.episode_delay.is_zero() {
         std::thread::sleep(ctx.episode_delay);
     }
-    let suite: Suite = key.suite.parse().map_err(anyhow::Error::msg)?;
-    let protocol = ctx.protocol.episode(suite);
+    let (steps, summary, protocol) = match Benchmark::of_suite(&key.suite) {
+        Benchmark::Libero => {
+            let suite: Suite = key.suite.parse().map_err(anyhow::Error::msg)?;
+            let protocol = ctx.protocol.episode(suite);
+            let (steps, summary) = run_libero(ctx, key, perturbation, suite, &protocol);
+            (steps, summary, protocol)
+        }
+        Benchmark::AlohaSim => {
+            let protocol = ctx.protocol.aloha_episode();
+            let (steps, summary) = run_aloha(ctx, key, &protocol);
+            (steps, summary, protocol)
+        }
+    };
+    let steps = steps?;
+    let params = perturbation.canonical();
+    let ectx = EpisodeContext {
+        policy: &ctx.policy.name(),
+        perturbation_params: params.as_deref(),
+        run_config: &ctx.run_config,
+        protocol: &protocol,
+    };
+    let episode = episode_batch(key, &summary, &ectx, extras)?;
+    let steps_bytes = parquet_bytes(&steps, Some(&ctx.manifest_json))?;
+    let episode_bytes = parquet_bytes(&episode, Some(&ctx.manifest_json))?;
+    ctx.runtime.block_on(async {
+        ctx.store.put(&format!("steps/{name}"), steps_bytes).await?;
+        ctx.store.put(&format!("episodes/{name}"), episode_bytes).await
+    })?;
+    let finished = ctx.finished.fetch_add(1, Ordering::Relaxed) + 1;
+    let successes = ctx.successes.fetch_add(summary.success() as u64, Ordering::Relaxed) + summary.success() as u64;
+    ctx.progress.set_message(format!("success {successes}/{finished}"));
+    ctx.progress.inc(1);
+    Ok((
+        key.episode_key.clone(),
+        summary.success(),
+        summary.n_policy_steps as i32,
+        summary.error.as_ref().map(|e| e.kind.to_string()),
+    ))
+}
+
+/// One LIBERO episode on the worker's env (kept while the worker stays on the task), caught if
+/// it panics: its steps and summary.
+fn run_libero(
+    ctx: &RolloutContext,
+    key: &EpisodeKey,
+    perturbation: &EpisodePerturbation,
+    suite: Suite,
+    protocol: &EpisodeProtocol,
+) -> (arrow::error::Result<RecordBatch>, EpisodeSummary) {
     let run = || -> (arrow::error::Result<RecordBatch>, EpisodeSummary) {
         WORKER_ENV.with(|cell| {
             let mut cached = cell.borrow_mut();
@@ -478,12 +548,12 @@ fn run_row(
                     return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
                 }
             };
-            let (steps, summary) = run_episode(env, policy.as_mut(), key, &protocol, perturbation, policy_seed(key));
+            let (steps, summary) = run_episode(env, policy.as_mut(), key, protocol, perturbation, policy_seed(key));
             policy.end_episode();
             (steps.finish(), summary)
         })
     };
-    let (steps, summary) = match std::panic::catch_unwind(AssertUnwindSafe(run)) {
+    match std::panic::catch_unwind(AssertUnwindSafe(run)) {
         Ok(r) => r,
         Err(panic) => {
             // The cached env may be mid-step; drop it.
@@ -497,32 +567,62 @@ fn run_row(
                 EpisodeSummary::failed_to_start((String::new(), ""), EpisodeError { kind: "internal", message: msg });
             (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s)
         }
+    }
+}
+
+thread_local! {
+    /// The worker's ALOHA-sim env, kept while consecutive episodes are of the same task.
+    static ALOHA_WORKER: RefCell<Option<AlohaWorker>> = const { RefCell::new(None) };
+}
+
+/// One ALOHA-sim episode on the worker's env, caught if it panics: its steps and summary.
+fn run_aloha(
+    ctx: &RolloutContext,
+    key: &EpisodeKey,
+    protocol: &EpisodeProtocol,
+) -> (arrow::error::Result<RecordBatch>, EpisodeSummary) {
+    let empty = || RecordBatch::new_empty(libero_schema::tables::aloha_steps());
+    let task = AlohaTask::from_id(key.task_id as i64);
+    let instruction = task.map(|t| t.instruction().to_string()).unwrap_or_default();
+    let failed = |kind: &'static str, message: String| {
+        (Ok(empty()), EpisodeSummary::failed_to_start((instruction.clone(), "task"), EpisodeError { kind, message }))
     };
-    let steps = steps?;
-    let params = perturbation.canonical();
-    let ectx = EpisodeContext {
-        policy: &ctx.policy.name(),
-        perturbation_params: params.as_deref(),
-        run_config: &ctx.run_config,
-        protocol: &protocol,
+    // the spec validation refuses both before a run starts
+    let (Some(bundle), Some(task)) = (ctx.aloha.as_ref(), task) else {
+        return failed(
+            "bundle",
+            format!("{}: no ALOHA-sim bundle in this run, or no task {}", key.episode_key, key.task_id),
+        );
     };
-    let episode = episode_batch(key, &summary, &ectx, extras)?;
-    let steps_bytes = parquet_bytes(&steps, Some(&ctx.manifest_json))?;
-    let episode_bytes = parquet_bytes(&episode, Some(&ctx.manifest_json))?;
-    ctx.runtime.block_on(async {
-        ctx.store.put(&format!("steps/{name}"), steps_bytes).await?;
-        ctx.store.put(&format!("episodes/{name}"), episode_bytes).await
-    })?;
-    let finished = ctx.finished.fetch_add(1, Ordering::Relaxed) + 1;
-    let successes = ctx.successes.fetch_add(summary.success() as u64, Ordering::Relaxed) + summary.success() as u64;
-    ctx.progress.set_message(format!("success {successes}/{finished}"));
-    ctx.progress.inc(1);
-    Ok((
-        key.episode_key.clone(),
-        summary.success(),
-        summary.n_policy_steps as i32,
-        summary.error.as_ref().map(|e| e.kind.to_string()),
-    ))
+    let run = || {
+        ALOHA_WORKER.with(|cell| {
+            let mut cached = cell.borrow_mut();
+            if cached.as_ref().is_none_or(|w| w.task != task) {
+                match AlohaWorker::new(bundle, task) {
+                    Ok(w) => *cached = Some(w),
+                    Err(e) => return failed("bundle", e.to_string()),
+                }
+            }
+            let worker = cached.as_mut().expect("worker just cached");
+            let mut policy = match ctx.policy.instantiate_aloha() {
+                Ok(p) => p,
+                Err(e) => return failed("policy", e.to_string()),
+            };
+            run_aloha_episode(worker, bundle, policy.as_mut(), key, protocol, policy_seed(key))
+        })
+    };
+    match std::panic::catch_unwind(AssertUnwindSafe(run)) {
+        Ok(r) => r,
+        Err(panic) => {
+            ALOHA_WORKER.with(|c| c.borrow_mut().take());
+            let msg = panic
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "panic".into());
+            failed("internal", msg)
+        }
+    }
 }
 
 /// What `rollout` returns for an episode whose part is stored: read from the part.

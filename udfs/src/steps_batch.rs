@@ -168,7 +168,7 @@ impl StepsBatchBuilder {
             None,
         )?;
         let contacts: StringArray = self.contacts.iter().map(|&i| Some(self.object_names[i].as_str())).collect();
-        let columns: Vec<ArrayRef> = vec![
+        let mut columns: Vec<ArrayRef> = vec![
             Arc::new(StringArray::from(vec![k.episode_key.as_str(); n])),
             Arc::new(StringArray::from(vec![k.suite.as_str(); n])),
             Arc::new(Int32Array::from(vec![k.task_id; n])),
@@ -186,24 +186,36 @@ impl StepsBatchBuilder {
             Arc::new(BooleanArray::from(self.goal)),
             list(DataType::Boolean, Arc::new(BooleanArray::from(self.goal_terms)), self.goal_terms_len)?,
             list(DataType::Utf8, Arc::new(contacts), self.contacts_len)?,
-            Arc::new(Float32Array::from(self.sim_ms)),
-            Arc::new(Float32Array::from(self.policy_ms)),
-            Arc::new(Float32Array::from(self.render_ms)),
-            Arc::new(self.timing.iter().map(|t| t.map(|t| t.queue_ms)).collect::<Float32Array>()),
-            Arc::new(self.timing.iter().map(|t| t.and_then(|t| t.prepare_ms)).collect::<Float32Array>()),
-            Arc::new(self.timing.iter().map(|t| t.map(|t| t.forward_ms)).collect::<Float32Array>()),
-            Arc::new(self.timing.iter().map(|t| t.map(|t| t.forward_id as i64)).collect::<Int64Array>()),
-            Arc::new(self.timing.iter().map(|t| t.map(|t| t.forward_batch as i32)).collect::<Int32Array>()),
         ];
+        columns.extend(timing_columns(self.sim_ms, self.policy_ms, self.render_ms, &self.timing));
         RecordBatch::try_new(tables::steps(), columns)
     }
+}
+
+/// The step-timing columns every benchmark's steps table ends with (`sim_ms` … `forward_batch`).
+pub(crate) fn timing_columns(
+    sim_ms: Vec<f32>,
+    policy_ms: Vec<f32>,
+    render_ms: Vec<f32>,
+    timing: &[Option<libero_policies::ActTiming>],
+) -> Vec<ArrayRef> {
+    vec![
+        Arc::new(Float32Array::from(sim_ms)),
+        Arc::new(Float32Array::from(policy_ms)),
+        Arc::new(Float32Array::from(render_ms)),
+        Arc::new(timing.iter().map(|t| t.map(|t| t.queue_ms)).collect::<Float32Array>()),
+        Arc::new(timing.iter().map(|t| t.and_then(|t| t.prepare_ms)).collect::<Float32Array>()),
+        Arc::new(timing.iter().map(|t| t.map(|t| t.forward_ms)).collect::<Float32Array>()),
+        Arc::new(timing.iter().map(|t| t.map(|t| t.forward_id as i64)).collect::<Int64Array>()),
+        Arc::new(timing.iter().map(|t| t.map(|t| t.forward_batch as i32)).collect::<Int32Array>()),
+    ]
 }
 
 fn item(t: DataType) -> Arc<Field> {
     Arc::new(Field::new("item", t, false))
 }
 
-fn fixed_f64(values: Vec<f64>, size: i32) -> Result<ArrayRef, ArrowError> {
+pub(crate) fn fixed_f64(values: Vec<f64>, size: i32) -> Result<ArrayRef, ArrowError> {
     Ok(Arc::new(FixedSizeListArray::try_new(
         item(DataType::Float64),
         size,
@@ -212,7 +224,7 @@ fn fixed_f64(values: Vec<f64>, size: i32) -> Result<ArrayRef, ArrowError> {
     )?))
 }
 
-fn fixed_f32(values: Vec<f32>, size: i32) -> Result<ArrayRef, ArrowError> {
+pub(crate) fn fixed_f32(values: Vec<f32>, size: i32) -> Result<ArrayRef, ArrowError> {
     Ok(Arc::new(FixedSizeListArray::try_new(
         item(DataType::Float32),
         size,
@@ -221,7 +233,11 @@ fn fixed_f32(values: Vec<f32>, size: i32) -> Result<ArrayRef, ArrowError> {
     )?))
 }
 
-fn list(t: DataType, values: ArrayRef, lengths: impl IntoIterator<Item = usize>) -> Result<ArrayRef, ArrowError> {
+pub(crate) fn list(
+    t: DataType,
+    values: ArrayRef,
+    lengths: impl IntoIterator<Item = usize>,
+) -> Result<ArrayRef, ArrowError> {
     Ok(Arc::new(ListArray::try_new(item(t), OffsetBuffer::from_lengths(lengths), values, None)?))
 }
 

@@ -130,6 +130,8 @@ impl ExecutorRuns {
             .collect::<Result<_>>()?;
         let protocol = RunProtocol {
             max_steps,
+            // a distributed run is LIBERO's (`pipeline run` refuses ALOHA-sim on a cluster)
+            aloha_max_steps: libero_schema::benchmark::aloha::LEROBOT_MAX_STEPS,
             num_steps_wait: manifest.num_steps_wait as u32,
             stop_on_success: manifest.stop_on_success,
             instruction_source: manifest.instruction_source,
@@ -252,6 +254,7 @@ mod tests {
             stop_on_success: false,
             substeps_per_step: 25,
             control_freq_hz: 20,
+            env: libero_schema::Benchmark::Libero,
         };
         check_same_build(&manifest, &bundles, &tasks).unwrap();
         let other = RunManifest {

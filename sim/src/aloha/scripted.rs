@@ -194,6 +194,11 @@ impl ScriptedPlan {
         self.actions[i]
     }
 
+    /// The targets in play order: entry t is the action of policy step t (env step t + 1).
+    pub fn actions(&self) -> &[[f32; ACTION_DIM]] {
+        &self.actions
+    }
+
     pub fn len(&self) -> usize {
         self.actions.len()
     }

@@ -32,6 +32,33 @@ const IDENTITY: [f64; 4] = [1.0, 0.0, 0.0, 0.0];
 impl AlohaTask {
     pub const ALL: [AlohaTask; 2] = [AlohaTask::TransferCube, AlohaTask::Insertion];
 
+    /// The task of a spec row's `task_id` (the order of [`AlohaTask::ALL`]).
+    pub fn from_id(task_id: i64) -> Option<AlohaTask> {
+        usize::try_from(task_id).ok().and_then(|i| AlohaTask::ALL.get(i).copied())
+    }
+
+    /// The spec rows' `task_id` of this task.
+    pub fn id(self) -> i32 {
+        self as i32
+    }
+
+    /// The instruction a language-conditioned policy is given: openpi's ALOHA-sim example prompts
+    /// "Transfer cube" (its `pi0_aloha_sim` was trained on it); the insertion's is the task's.
+    pub fn instruction(self) -> &'static str {
+        match self {
+            AlohaTask::TransferCube => "Transfer cube",
+            AlohaTask::Insertion => "Insert the peg into the socket",
+        }
+    }
+
+    /// The free objects, in `qpos[16..]` order (their free joints' names without `_joint`).
+    pub fn object_names(self) -> &'static [&'static str] {
+        match self {
+            AlohaTask::TransferCube => &["red_box"],
+            AlohaTask::Insertion => &["red_peg", "blue_socket"],
+        }
+    }
+
     /// gym-aloha's task name (`AlohaEnv(task=...)`), also ours.
     pub fn name(self) -> &'static str {
         match self {
@@ -120,6 +147,16 @@ mod tests {
         assert_eq!(&pair[..3], &[0.16535895854646096, 0.4230013886248812, 0.05]);
         assert_eq!(&pair[7..10], &[-0.1517808598572002, 0.574494907036407, 0.05]);
         assert_eq!((&pair[3..7], &pair[10..]), (&IDENTITY[..], &IDENTITY[..]));
+    }
+
+    #[test]
+    fn task_ids_are_the_order_of_all() {
+        for t in AlohaTask::ALL {
+            assert_eq!(AlohaTask::from_id(t.id() as i64), Some(t));
+            assert_eq!(t.object_names().len(), t.objects());
+        }
+        assert_eq!(AlohaTask::from_id(2), None);
+        assert_eq!(AlohaTask::from_id(-1), None);
     }
 
     #[test]

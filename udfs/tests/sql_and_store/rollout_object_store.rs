@@ -26,7 +26,13 @@ async fn episodes_written_to_an_object_store_url_are_listed_and_queryable() {
     let ctx = Arc::new(RolloutContext::new(
         bundles,
         PolicySpec::Lift,
-        RunProtocol { max_steps, num_steps_wait: 2, stop_on_success: false, instruction_source: Default::default() },
+        RunProtocol {
+            max_steps,
+            aloha_max_steps: 400,
+            num_steps_wait: 2,
+            stop_on_success: false,
+            instruction_source: Default::default(),
+        },
         "test".into(),
         "{}".into(),
         store.clone(),

@@ -1,0 +1,176 @@
+//! ALOHA-sim through the same dataflow as LIBERO: `pipeline specs --benchmark aloha_sim` (lerobot's
+//! seeds 1000 + i), `pipeline run` on the real gym-aloha scene (`data/aloha`), the episode rows
+//! and the scores of the same queries, ALOHA's own steps table (14-D actions, `agent_pos`, the
+//! 0–4 reward), resume, and the bad inputs refused before any episode.
+//!
+//! Kept small for CI (2 episodes per task); the positive control's rate over lerobot's 50 seeds
+//! per task is `sim/tests/aloha.rs`'s.
+
+use arrow::array::{ArrayRef, Int32Array, Int64Array, RecordBatch, StringArray};
+use arrow::datatypes::{Field, Schema};
+use libero_e2e::{ok, pipeline, test_dir};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+fn tmp(name: &str) -> PathBuf {
+    test_dir("aloha_run", name)
+}
+
+fn sql(run: &Path, query: &str) -> Vec<Vec<String>> {
+    libero_e2e::sql_rows(run, query, &[])
+}
+
+fn aloha_specs(dir: &Path, trials: &str) -> PathBuf {
+    let specs = dir.join("specs.parquet");
+    ok(pipeline(&["specs", "--benchmark", "aloha_sim", "--trials", trials, "-o", specs.to_str().unwrap()]));
+    specs
+}
+
+fn write_specs(path: &Path, columns: Vec<(&str, ArrayRef)>) {
+    let schema =
+        Schema::new(columns.iter().map(|(n, a)| Field::new(*n, a.data_type().clone(), true)).collect::<Vec<_>>());
+    let batch = RecordBatch::try_new(Arc::new(schema), columns.into_iter().map(|(_, a)| a).collect()).unwrap();
+    std::fs::write(path, libero_udfs::run_store::parquet_bytes(&batch, None).unwrap()).unwrap();
+}
+
+fn spec_columns(suite: &[&str], task: &[i32], seed: &[i64]) -> Vec<(&'static str, ArrayRef)> {
+    vec![
+        ("suite", Arc::new(StringArray::from(suite.to_vec())) as ArrayRef),
+        ("task_id", Arc::new(Int32Array::from(task.to_vec()))),
+        ("init_state_id", Arc::new(Int32Array::from((0..task.len() as i32).collect::<Vec<_>>()))),
+        ("seed", Arc::new(Int64Array::from(seed.to_vec()))),
+    ]
+}
+
+/// The scripted control solves every episode and the random baseline none, through `pipeline
+/// run`; the episode rows say `aloha_sim` and the protocol; the steps are ALOHA's; `results`
+/// scores them with Wilson intervals; a second run on the same `--out` runs nothing.
+#[test]
+fn aloha_sim_episodes_run_through_the_pipeline_and_score_like_libero() {
+    let dir = tmp("control");
+    let specs = aloha_specs(&dir, "2");
+    let run = dir.join("expert");
+    let (s, r) = (specs.to_str().unwrap(), run.to_str().unwrap());
+    let out = ok(pipeline(&["run", s, "--out", r, "--policy", "expert"]));
+    eprintln!("{out}");
+
+    let episodes = sql(
+        &run,
+        "SELECT task_id, seed, env, success, first_success_step, n_policy_steps, max_steps, num_steps_wait, instruction, error_kind \
+         FROM episodes ORDER BY task_id, seed",
+    );
+    assert_eq!(episodes.len(), 4, "{episodes:?}");
+    for (e, (task, seed)) in episodes.iter().zip([(0, 1000), (0, 1001), (1, 1000), (1, 1001)]) {
+        assert_eq!((e[0].as_str(), e[1].as_str()), (task.to_string().as_str(), seed.to_string().as_str()));
+        assert_eq!(&e[2..4], ["aloha_sim", "true"], "{e:?}");
+        // run to the cap (lerobot's 400), no wait steps; the scripted transfer succeeds at
+        // ~202-212, the insertion at ~332-334 (sim/tests/aloha.rs over 50 seeds)
+        let first: u32 = e[4].parse().unwrap();
+        let window = if task == 0 { 195..=220 } else { 325..=340 };
+        assert!(window.contains(&first), "first success {first}: {e:?}");
+        assert_eq!(&e[5..8], ["400", "400", "0"], "{e:?}");
+        assert_eq!(e[9], "", "{e:?}");
+    }
+    assert_eq!(episodes[0][8], "Transfer cube");
+
+    // ALOHA's steps: 14-D actions, agent_pos, the reward, goal = reward 4, no wait steps
+    let steps = sql(
+        &run,
+        "SELECT count(*), min(array_length(action, 1)), max(array_length(agent_pos, 1)), \
+                sum(CAST(is_wait AS INT)), sum(CAST(goal <> (reward = 4) AS INT)), max(reward), min(step), max(step) \
+         FROM steps",
+    );
+    assert_eq!(steps[0], ["1600", "14", "14", "0", "0", "4", "0", "399"], "{steps:?}");
+    // the reward climbs through the stages of a transfer: the right gripper touches the cube
+    // (1), lifts it (2), the left one holds it off the table (4; 3, the left touching while the
+    // cube is on the table, is skipped by a handover in the air)
+    let levels =
+        sql(&run, "SELECT count(DISTINCT reward) FROM steps WHERE task_id = 0 AND seed = 1000 AND reward IN (1, 2, 4)");
+    assert_eq!(levels[0][0], "3", "{levels:?}");
+
+    // the same results query as LIBERO's: 4/4 with a Wilson interval
+    let results = dir.join("results");
+    let text = ok(pipeline(&["results", "--run", r, "--out", results.to_str().unwrap()]));
+    let csv = std::fs::read_to_string(results.join("results.csv")).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let row: Vec<&str> = csv
+        .lines()
+        .find(|l| l.starts_with("aloha_sim,"))
+        .unwrap_or_else(|| panic!("{csv}\n{text}"))
+        .split(',')
+        .collect();
+    let col = |name: &str| row[header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name}: {csv}"))];
+    assert_eq!((col("n_total"), col("n_success"), col("n_error")), ("4", "4", "0"), "{csv}");
+    assert_eq!(col("success_rate").parse::<f64>().unwrap(), 1.0, "{csv}");
+    let (lo, hi): (f64, f64) = (col("ci_lo").parse().unwrap(), col("ci_hi").parse().unwrap());
+    // Wilson 95% of 4/4: [0.510, 1]
+    assert!((lo - 0.5101).abs() < 1e-3 && hi == 1.0, "{lo} {hi}");
+
+    // resume: nothing left to run
+    let again = pipeline(&["run", s, "--out", r, "--policy", "expert"]);
+    let stderr = String::from_utf8_lossy(&again.stderr).to_string();
+    assert!(again.status.success() && stderr.contains("(4 already finished, 0 to run)"), "{stderr}");
+
+    // the random baseline solves nothing
+    let random = dir.join("random");
+    ok(pipeline(&["run", s, "--out", random.to_str().unwrap(), "--policy", "random"]));
+    let rows = sql(&random, "SELECT sum(CAST(success AS INT)), count(*), count(error_kind) FROM episodes");
+    assert_eq!(rows[0], ["0", "4", "0"], "{rows:?}");
+}
+
+/// A NaN action is an error row and the run goes on; the manifest records the benchmark and
+/// ALOHA's control rate; the gym cap (300) is expressible and recorded.
+#[test]
+fn aloha_error_rows_and_the_gym_cap() {
+    let dir = tmp("errors");
+    let specs = aloha_specs(&dir, "1");
+    let run = dir.join("run");
+    let r = run.to_str().unwrap();
+    ok(pipeline(&["run", specs.to_str().unwrap(), "--out", r, "--policy", "nan-at:5", "--max-steps", "300"]));
+    let rows = sql(&run, "SELECT task_id, error_kind, n_policy_steps, max_steps FROM episodes ORDER BY task_id");
+    assert_eq!(rows, [["0", "invalid_action", "5", "300"], ["1", "invalid_action", "5", "300"]]);
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["env"], "aloha_sim");
+    assert_eq!(manifest["control_freq_hz"], 50);
+    assert_eq!(manifest["substeps_per_step"], 10);
+    assert_eq!(manifest["max_steps"]["aloha_sim"], 300);
+}
+
+/// Bad input fails before any episode, naming the problem and the fix: a LIBERO policy (7-D
+/// actions) on ALOHA-sim, an unknown ALOHA task, a seed numpy cannot take, a LIBERO perturbation
+/// column on ALOHA rows, LIBERO and ALOHA rows in one table.
+#[test]
+fn bad_aloha_specs_and_policies_fail_before_any_episode() {
+    let dir = tmp("bad");
+    let specs = aloha_specs(&dir, "1");
+    let refused = |specs: &Path, policy: &str, needles: &[&str]| {
+        let run = dir.join(format!("run-{}", specs.file_stem().unwrap().to_string_lossy()));
+        let out = pipeline(&["run", specs.to_str().unwrap(), "--out", run.to_str().unwrap(), "--policy", policy]);
+        let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(!out.status.success(), "accepted: {stderr}");
+        for n in needles {
+            assert!(stderr.contains(n), "{n:?} not in: {stderr}");
+        }
+        assert!(!run.join("episodes").exists(), "an episode ran: {stderr}");
+    };
+    refused(&specs, "lift", &["7-D", "14-D", "expert"]);
+
+    let bad_task = dir.join("bad_task.parquet");
+    write_specs(&bad_task, spec_columns(&["aloha_sim", "aloha_sim"], &[0, 2], &[1000, 1001]));
+    refused(&bad_task, "expert", &["row 1", "no task_id 2", "0 transfer_cube and 1 insertion"]);
+
+    let bad_seed = dir.join("bad_seed.parquet");
+    write_specs(&bad_seed, spec_columns(&["aloha_sim"], &[0], &[1 << 33]));
+    refused(&bad_seed, "expert", &["row 0", "4294967295"]);
+
+    let libero_column = dir.join("libero_column.parquet");
+    let mut columns = spec_columns(&["aloha_sim"], &[0], &[1000]);
+    columns.push(("camera_pos", Arc::new(StringArray::from(vec!["[0, 0, 1]"])) as ArrayRef));
+    write_specs(&libero_column, columns);
+    refused(&libero_column, "expert", &["camera_pos", "LIBERO perturbation", "drop them"]);
+
+    let mixed = dir.join("mixed.parquet");
+    write_specs(&mixed, spec_columns(&["libero_spatial", "aloha_sim"], &[0, 0], &[7, 1000]));
+    refused(&mixed, "expert", &["mixes benchmarks", "row 0 is libero", "row 1 is aloha_sim"]);
+}

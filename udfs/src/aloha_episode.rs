@@ -1,0 +1,250 @@
+//! One ALOHA-sim episode: `reset(seed)`, then the policy until the cap (or the first success when
+//! asked), recording every step as a row of [`tables::aloha_steps`]; the episode row is the
+//! LIBERO one ([`crate::episode::episode_batch`]), so every score reads both benchmarks alike.
+//!
+//! The loop is lerobot's and gym-aloha's: no wait steps, the action of step t from the
+//! observation after step t − 1, success = reward 4 (`is_success`). gym-aloha terminates at the
+//! first success; here the default runs to the cap, as for LIBERO, so that last-step scoring
+//! stays possible, and `success` (reward 4 at any step within the cap) is lerobot's either way.
+
+use crate::episode::{EpisodeError, EpisodeProtocol, EpisodeSummary};
+use crate::goal_evidence::GoalChanges;
+use crate::steps_batch::{EpisodeKey, fixed_f32, fixed_f64, list, timing_columns};
+use arrow::array::{ArrayRef, BooleanArray, Int32Array, Int64Array, RecordBatch, StringArray, StructArray};
+use arrow::datatypes::DataType;
+use arrow::error::ArrowError;
+use libero_policies::PolicyError;
+use libero_policies::aloha::{AlohaAction, AlohaObservation, AlohaPolicy};
+use libero_schema::tables;
+use libero_sim::SimError;
+use libero_sim::aloha::{AlohaBundle, AlohaEnv, AlohaTask, MAX_REWARD, ScriptRecorder};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// A rollout worker's ALOHA-sim env for one task, and the recorder of the scripted control
+/// (made when a policy first asks for it).
+pub struct AlohaWorker {
+    pub task: AlohaTask,
+    env: AlohaEnv,
+    recorder: Option<ScriptRecorder>,
+}
+
+impl AlohaWorker {
+    pub fn new(bundle: &AlohaBundle, task: AlohaTask) -> Result<Self, SimError> {
+        Ok(AlohaWorker { task, env: AlohaEnv::new(bundle, task)?, recorder: None })
+    }
+}
+
+/// sha256 of what an ALOHA-sim episode starts from: the task's scene file (its hash in the
+/// bundle's provenance) and the objects' initial pose. Equal hashes start identically.
+pub fn aloha_start_sha256(bundle: &AlohaBundle, task: AlohaTask, pose: &[f64]) -> String {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
+    let scene = format!("assets/{}", task.scene_file());
+    h.update(bundle.provenance["sha256"][&scene].as_str().unwrap_or_default().as_bytes());
+    for v in pose {
+        h.update(v.to_le_bytes());
+    }
+    format!("{:x}", h.finalize())
+}
+
+/// Run one episode of `worker`'s task with the objects where `key.seed` puts them.
+pub fn run_aloha_episode(
+    worker: &mut AlohaWorker,
+    bundle: &AlohaBundle,
+    policy: &mut dyn AlohaPolicy,
+    key: &EpisodeKey,
+    protocol: &EpisodeProtocol,
+    policy_seed: u64,
+) -> (Result<RecordBatch, ArrowError>, EpisodeSummary) {
+    let t_start = Instant::now();
+    let task = worker.task;
+    let mut steps = AlohaStepsBuilder::new(key.clone(), task);
+    let mut summary = EpisodeSummary {
+        instruction: task.instruction().to_string(),
+        instruction_source: "task",
+        start_sha256: None,
+        n_policy_steps: 0,
+        first_success_step: None,
+        final_goal: false,
+        goal_changes: GoalChanges::default(),
+        // the goal is one predicate, reward 4
+        goal_terms: vec![],
+        objects_of_interest: task.object_names().iter().map(|s| s.to_string()).collect(),
+        error: None,
+        wall_s: 0.0,
+        sim_s: 0.0,
+        policy_s: 0.0,
+        render_s: 0.0,
+        started_at: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).ok().map(|d| d.as_secs_f64()),
+    };
+    let fail = |mut summary: EpisodeSummary, error: EpisodeError, steps: AlohaStepsBuilder| {
+        summary.error = Some(error);
+        summary.wall_s = t_start.elapsed().as_secs_f64();
+        (steps.finish(), summary)
+    };
+    // the spec validation keeps seeds in u32 (numpy's RandomState takes 0 ..= 2^32 - 1)
+    let Ok(seed) = u32::try_from(key.seed) else {
+        let e = EpisodeError { kind: "bundle", message: format!("seed {} is outside 0..=4294967295", key.seed) };
+        return fail(summary, e, steps);
+    };
+    let pose = task.initial_pose(seed);
+    summary.start_sha256 = Some(aloha_start_sha256(bundle, task, &pose));
+    if let Err(e) = worker.env.reset_to_pose(&pose) {
+        return fail(summary, EpisodeError::from_sim(&e), steps);
+    }
+    policy.reset(policy_seed);
+    let script = if policy.wants_script() {
+        let recorder = match worker.recorder.take() {
+            Some(r) => Ok(r),
+            None => ScriptRecorder::new(bundle, task),
+        };
+        match recorder.and_then(|mut r| {
+            let plan = r.record(&pose);
+            worker.recorder = Some(r);
+            plan
+        }) {
+            Ok(plan) => Some(Arc::new(plan.actions().to_vec())),
+            Err(e) => return fail(summary, EpisodeError::from_sim(&e), steps),
+        }
+    } else {
+        None
+    };
+    for p in 0..protocol.max_steps {
+        // no policy here renders the `top` camera yet (openpi's ALOHA client will)
+        let obs =
+            AlohaObservation { policy_step: p, agent_pos: worker.env.agent_pos(), top: None, script: script.clone() };
+        let t0 = Instant::now();
+        let action: Result<AlohaAction, PolicyError> = policy.act(&obs);
+        let policy_ms = t0.elapsed().as_secs_f32() * 1e3;
+        summary.policy_s += policy_ms as f64 / 1e3;
+        let action = match action {
+            Ok(a) => a,
+            Err(e) => {
+                summary.error = Some(EpisodeError { kind: "policy", message: e.to_string() });
+                break;
+            }
+        };
+        let t0 = Instant::now();
+        let reward = worker.env.step(&action);
+        let sim_ms = t0.elapsed().as_secs_f32() * 1e3;
+        summary.sim_s += sim_ms as f64 / 1e3;
+        let reward = match reward {
+            Ok(r) => r,
+            Err(e) => {
+                summary.error = Some(EpisodeError::from_sim(&e));
+                break;
+            }
+        };
+        let goal = reward == MAX_REWARD;
+        steps.push(
+            p as i32,
+            &action,
+            &worker.env.agent_pos(),
+            &worker.env.qpos()[16..],
+            goal,
+            reward,
+            sim_ms,
+            policy_ms,
+        );
+        summary.n_policy_steps = p + 1;
+        summary.final_goal = goal;
+        summary.goal_changes.record(p, goal);
+        if goal && summary.first_success_step.is_none() {
+            summary.first_success_step = Some(p);
+            if protocol.stop_on_success {
+                break;
+            }
+        }
+    }
+    summary.wall_s = t_start.elapsed().as_secs_f64();
+    (steps.finish(), summary)
+}
+
+/// Column buffers of one ALOHA-sim episode's steps ([`tables::aloha_steps`]).
+struct AlohaStepsBuilder {
+    key: EpisodeKey,
+    object_names: &'static [&'static str],
+    step: Vec<i32>,
+    action: Vec<f32>,
+    agent_pos: Vec<f64>,
+    object_pos: Vec<f64>,
+    object_quat: Vec<f64>,
+    goal: Vec<bool>,
+    reward: Vec<i32>,
+    sim_ms: Vec<f32>,
+    policy_ms: Vec<f32>,
+}
+
+impl AlohaStepsBuilder {
+    fn new(key: EpisodeKey, task: AlohaTask) -> Self {
+        AlohaStepsBuilder {
+            key,
+            object_names: task.object_names(),
+            step: vec![],
+            action: vec![],
+            agent_pos: vec![],
+            object_pos: vec![],
+            object_quat: vec![],
+            goal: vec![],
+            reward: vec![],
+            sim_ms: vec![],
+            policy_ms: vec![],
+        }
+    }
+
+    /// One step; `objects` is `qpos[16..]` (position and (w, x, y, z) of each object).
+    #[allow(clippy::too_many_arguments)]
+    fn push(
+        &mut self,
+        step: i32,
+        action: &AlohaAction,
+        agent_pos: &[f64; 14],
+        objects: &[f64],
+        goal: bool,
+        reward: u8,
+        sim_ms: f32,
+        policy_ms: f32,
+    ) {
+        self.step.push(step);
+        self.action.extend_from_slice(action);
+        self.agent_pos.extend_from_slice(agent_pos);
+        for pose in objects.chunks_exact(7) {
+            self.object_pos.extend_from_slice(&pose[..3]);
+            self.object_quat.extend_from_slice(&pose[3..]);
+        }
+        self.goal.push(goal);
+        self.reward.push(reward as i32);
+        self.sim_ms.push(sim_ms);
+        self.policy_ms.push(policy_ms);
+    }
+
+    fn finish(self) -> Result<RecordBatch, ArrowError> {
+        let (n, k, n_obj) = (self.step.len(), &self.key, self.object_names.len());
+        let names: StringArray = (0..n).flat_map(|_| self.object_names.iter().map(|s| Some(*s))).collect();
+        let pose_fields = tables::object_pose_fields();
+        let poses = StructArray::try_new(
+            pose_fields.clone(),
+            vec![Arc::new(names), fixed_f64(self.object_pos, 3)?, fixed_f64(self.object_quat, 4)?],
+            None,
+        )?;
+        let mut columns: Vec<ArrayRef> = vec![
+            Arc::new(StringArray::from(vec![k.episode_key.as_str(); n])),
+            Arc::new(StringArray::from(vec![k.suite.as_str(); n])),
+            Arc::new(Int32Array::from(vec![k.task_id; n])),
+            Arc::new(Int32Array::from(vec![k.init_state_id; n])),
+            Arc::new(Int64Array::from(vec![k.seed; n])),
+            Arc::new(Int32Array::from(self.step.clone())),
+            Arc::new(Int32Array::from(self.step)),
+            Arc::new(BooleanArray::from(vec![false; n])),
+            fixed_f32(self.action, 14)?,
+            fixed_f64(self.agent_pos, 14)?,
+            list(DataType::Struct(pose_fields), Arc::new(poses), std::iter::repeat_n(n_obj, n))?,
+            Arc::new(BooleanArray::from(self.goal)),
+            Arc::new(Int32Array::from(self.reward)),
+        ];
+        // nothing is rendered for a policy yet, and no ALOHA policy reports model timings
+        columns.extend(timing_columns(self.sim_ms, self.policy_ms, vec![0.0; n], &vec![None; n]));
+        RecordBatch::try_new(tables::aloha_steps(), columns)
+    }
+}

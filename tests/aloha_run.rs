@@ -1,7 +1,8 @@
 //! ALOHA-sim through the same dataflow as LIBERO: `pipeline specs --benchmark aloha_sim` (lerobot's
 //! seeds 1000 + i), `pipeline run` on the real gym-aloha scene (`data/aloha`), the episode rows
 //! and the scores of the same queries, ALOHA's own steps table (14-D actions, `agent_pos`, the
-//! 0–4 reward), resume, and the bad inputs refused before any episode.
+//! 0–4 reward), re-scoring from the compact evidence equal to re-scoring from the steps, failure
+//! modes from the reward stages, resume, and the bad inputs refused before any episode.
 //!
 //! Kept small for CI (2 episodes per task); the positive control's rate over lerobot's 50 seeds
 //! per task is `sim/tests/aloha.rs`'s.
@@ -111,11 +112,52 @@ fn aloha_sim_episodes_run_through_the_pipeline_and_score_like_libero() {
     let stderr = String::from_utf8_lossy(&again.stderr).to_string();
     assert!(again.status.success() && stderr.contains("(4 already finished, 0 to run)"), "{stderr}");
 
-    // the random baseline solves nothing
+    // re-scoring from the episodes' compact evidence equals re-scoring from the step rows, under
+    // both success definitions and a shorter cap
+    libero_e2e::assert_goal_evidence_matches_steps(&run, 300);
+
+    // failure modes from the reward stages: at gym-aloha's 300-step cap the scripted insertion
+    // (first success at ~332) fails with the peg lifted but not in, the transfer (~205) succeeds
+    let modes = failure_modes(&run, &dir.join("failures-300"), &["--cap", "300"]);
+    assert_eq!(modes.len(), 2, "{modes:?}");
+    for (task, mode, max_reward) in &modes {
+        assert_eq!(task, "1", "{modes:?}");
+        assert!(
+            ["not_aligned", "not_inserted"].contains(&mode.as_str()) && ["2", "3"].contains(&max_reward.as_str()),
+            "{modes:?}"
+        );
+    }
+
+    // the random baseline solves nothing, and its failures are early stages
     let random = dir.join("random");
     ok(pipeline(&["run", s, "--out", random.to_str().unwrap(), "--policy", "random"]));
     let rows = sql(&random, "SELECT sum(CAST(success AS INT)), count(*), count(error_kind) FROM episodes");
     assert_eq!(rows[0], ["0", "4", "0"], "{rows:?}");
+    let modes = failure_modes(&random, &dir.join("failures-random"), &[]);
+    assert_eq!(modes.len(), 4, "{modes:?}");
+    for (task, mode, _) in &modes {
+        let early: &[&str] =
+            if task == "0" { &["never_touched", "not_lifted"] } else { &["not_grasped", "not_lifted"] };
+        assert!(early.contains(&mode.as_str()), "{modes:?}");
+    }
+}
+
+/// `pipeline failures` on a run: (task_id, failure_mode, max_reward) per failed episode.
+fn failure_modes(run: &Path, out: &Path, extra: &[&str]) -> Vec<(String, String, String)> {
+    let mut args = vec!["failures", "--run", run.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    ok(pipeline(&args));
+    let csv = std::fs::read_to_string(out.join("failure_modes.csv")).unwrap();
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let at = |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name}: {csv}"));
+    let (task, mode, reward) = (at("task_id"), at("failure_mode"), at("max_reward"));
+    csv.lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[task].to_string(), f[mode].to_string(), f[reward].to_string())
+        })
+        .collect()
 }
 
 /// A NaN action is an error row and the run goes on; the manifest records the benchmark and
@@ -129,6 +171,8 @@ fn aloha_error_rows_and_the_gym_cap() {
     ok(pipeline(&["run", specs.to_str().unwrap(), "--out", r, "--policy", "nan-at:5", "--max-steps", "300"]));
     let rows = sql(&run, "SELECT task_id, error_kind, n_policy_steps, max_steps FROM episodes ORDER BY task_id");
     assert_eq!(rows, [["0", "invalid_action", "5", "300"], ["1", "invalid_action", "5", "300"]]);
+    let modes = failure_modes(&run, &dir.join("failures"), &[]);
+    assert!(modes.len() == 2 && modes.iter().all(|(_, m, _)| m == "error"), "{modes:?}");
     let manifest: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("manifest.json")).unwrap()).unwrap();
     assert_eq!(manifest["env"], "aloha_sim");

@@ -88,6 +88,8 @@ pub mod queries {
     pub const COMPARE_FIRST_ACTIONS: &str = "compare_first_actions";
     pub const SAMPLE_SIZE: &str = "sample_size";
     pub const FAILURE_MODES: &str = "failure_modes";
+    /// ALOHA-sim's `failure_modes` (from the reward stages), defined in an ALOHA-sim run's session.
+    pub const ALOHA_FAILURE_MODES: &str = "aloha_failure_modes";
     pub const FAILURE_SUMMARY: &str = "failure_summary";
     pub const VIDEO_SELECTION: &str = "video_selection";
     pub const PUBLISHED_COMPARISON: &str = "published_comparison";
@@ -109,6 +111,7 @@ pub mod queries {
         (COMPARE_FIRST_ACTIONS, include_str!("../../queries/compare_first_actions.sql")),
         (SAMPLE_SIZE, include_str!("../../queries/sample_size.sql")),
         (FAILURE_MODES, include_str!("../../queries/failure_modes.sql")),
+        (ALOHA_FAILURE_MODES, include_str!("../../queries/aloha_failure_modes.sql")),
         (FAILURE_SUMMARY, include_str!("../../queries/failure_summary.sql")),
         (VIDEO_SELECTION, include_str!("../../queries/video_selection.sql")),
         (PUBLISHED_COMPARISON, include_str!("../../queries/published_comparison.sql")),
@@ -272,11 +275,16 @@ pub async fn open_on(
     let evidence = if manifest.tables_version >= 3 { Evidence::GoalChanges } else { Evidence::Steps };
     define_scored(&ctx, success, cap, evidence).await?;
     // Views only: nothing is computed until a query reads them.
-    // LIBERO's failure modes read its steps' end-effector, contacts and goal terms; ALOHA-sim's
-    // are not written yet (`pipeline failures` says so)
-    if manifest.env == libero_schema::Benchmark::Libero {
-        queries::run(&ctx, queries::FAILURE_MODES).await?;
-    }
+    // each benchmark's failure modes read its own steps table (LIBERO's: the end-effector,
+    // contacts and goal terms; ALOHA-sim's: the reward stages)
+    queries::run(
+        &ctx,
+        match manifest.env {
+            libero_schema::Benchmark::Libero => queries::FAILURE_MODES,
+            libero_schema::Benchmark::AlohaSim => queries::ALOHA_FAILURE_MODES,
+        },
+    )
+    .await?;
     queries::define_views(&ctx, queries::ROBUSTNESS).await?;
     Ok((ctx, store))
 }
@@ -318,13 +326,7 @@ pub async fn counts_any(ctx: &SessionContext, count_query: &str) -> Result<bool>
 }
 
 pub async fn materialize(ctx: &SessionContext, view: &str) -> Result<Vec<arrow::record_batch::RecordBatch>> {
-    let df = ctx.table(view).await.with_context(|| {
-        if view == queries::FAILURE_MODES {
-            "no view failure_modes: ALOHA-sim runs have no failure modes yet (queries/failure_modes.sql reads LIBERO's steps); `pipeline results` scores them".to_string()
-        } else {
-            format!("no view {view}")
-        }
-    })?;
+    let df = ctx.table(view).await.with_context(|| format!("no view {view}"))?;
     if is_distributed(ctx) {
         // A cluster's plans cannot carry in-memory tables: the view stays, and is derived again
         // by the queries that read it.

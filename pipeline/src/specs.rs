@@ -262,6 +262,17 @@ pub fn spec_benchmark(raw: &RecordBatch, source: &str) -> Result<libero_schema::
     Ok(first.map(|(_, b)| b).unwrap_or(Benchmark::Libero))
 }
 
+/// Stop before any episode when a spec table has problems, naming the first 20.
+fn refuse_problems(source: &str, problems: Vec<String>) -> Result<()> {
+    if problems.is_empty() {
+        return Ok(());
+    }
+    let n = problems.len();
+    let shown: Vec<String> = problems.into_iter().take(20).collect();
+    let more = if n > 20 { format!("\n  ... and {} more", n - 20) } else { String::new() };
+    bail!("spec file {source} has {n} problem(s); no episode was started:\n  {}{more}", shown.join("\n  "))
+}
+
 /// Validate the rows of an ALOHA-sim spec (suite `aloha_sim`): `task_id` 0 (transfer_cube) or 1
 /// (insertion), `seed` numpy's `RandomState` takes (0 ..= 2^32 − 1), `init_state_id` ≥ 0 (the
 /// episode's index: it names the episode, the seed places the objects), no duplicate keys, and no
@@ -314,12 +325,7 @@ fn validate_aloha(batch: RecordBatch, extras: Vec<String>, source: &str) -> Resu
         }
         keys.push(key);
     }
-    if !problems.is_empty() {
-        let n = problems.len();
-        let shown: Vec<String> = problems.into_iter().take(20).collect();
-        let more = if n > 20 { format!("\n  ... and {} more", n - 20) } else { String::new() };
-        bail!("spec file {source} has {n} problem(s); no episode was started:\n  {}{more}", shown.join("\n  "));
-    }
+    refuse_problems(source, problems)?;
     Ok(Specs { batch, keys, extras, first_camera_row: None })
 }
 
@@ -469,12 +475,7 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
         }
         keys.push(key);
     }
-    if !problems.is_empty() {
-        let n = problems.len();
-        let shown: Vec<String> = problems.into_iter().take(20).collect();
-        let more = if n > 20 { format!("\n  ... and {} more", n - 20) } else { String::new() };
-        bail!("spec file {source} has {n} problem(s); no episode was started:\n  {}{more}", shown.join("\n  "));
-    }
+    refuse_problems(source, problems)?;
     if batch.num_rows() == 0 {
         bail!("spec file {source} has no rows");
     }

@@ -9,9 +9,8 @@
 
 use crate::episode::{EpisodeError, EpisodeProtocol, EpisodeSummary};
 use crate::goal_evidence::GoalChanges;
-use crate::steps_batch::{EpisodeKey, fixed_f32, fixed_f64, list, timing_columns};
-use arrow::array::{ArrayRef, BooleanArray, Int32Array, Int64Array, RecordBatch, StringArray, StructArray};
-use arrow::datatypes::DataType;
+use crate::steps_batch::{EpisodeKey, fixed_f32, fixed_f64, object_poses_column, timing_columns};
+use arrow::array::{ArrayRef, BooleanArray, Int32Array, RecordBatch};
 use arrow::error::ArrowError;
 use libero_policies::PolicyError;
 use libero_policies::aloha::{AlohaAction, AlohaObservation, AlohaPolicy};
@@ -110,10 +109,11 @@ pub fn run_aloha_episode(
     } else {
         None
     };
+    // the joints after step t are what the policy sees before step t + 1: read them once a step
+    let mut agent_pos = worker.env.agent_pos();
     for p in 0..protocol.max_steps {
         // no policy here renders the `top` camera yet (openpi's ALOHA client will)
-        let obs =
-            AlohaObservation { policy_step: p, agent_pos: worker.env.agent_pos(), top: None, script: script.clone() };
+        let obs = AlohaObservation { policy_step: p, agent_pos, top: None, script: script.clone() };
         let t0 = Instant::now();
         let action: Result<AlohaAction, PolicyError> = policy.act(&obs);
         let policy_ms = t0.elapsed().as_secs_f32() * 1e3;
@@ -137,16 +137,8 @@ pub fn run_aloha_episode(
             }
         };
         let goal = reward == MAX_REWARD;
-        steps.push(
-            p as i32,
-            &action,
-            &worker.env.agent_pos(),
-            &worker.env.qpos()[16..],
-            goal,
-            reward,
-            sim_ms,
-            policy_ms,
-        );
+        agent_pos = worker.env.agent_pos();
+        steps.push(p as i32, &action, &agent_pos, &worker.env.qpos()[16..], goal, reward, sim_ms, policy_ms);
         summary.n_policy_steps = p + 1;
         summary.final_goal = goal;
         summary.goal_changes.record(p, goal);
@@ -220,29 +212,19 @@ impl AlohaStepsBuilder {
     }
 
     fn finish(self) -> Result<RecordBatch, ArrowError> {
-        let (n, k, n_obj) = (self.step.len(), &self.key, self.object_names.len());
-        let names: StringArray = (0..n).flat_map(|_| self.object_names.iter().map(|s| Some(*s))).collect();
-        let pose_fields = tables::object_pose_fields();
-        let poses = StructArray::try_new(
-            pose_fields.clone(),
-            vec![Arc::new(names), fixed_f64(self.object_pos, 3)?, fixed_f64(self.object_quat, 4)?],
-            None,
-        )?;
-        let mut columns: Vec<ArrayRef> = vec![
-            Arc::new(StringArray::from(vec![k.episode_key.as_str(); n])),
-            Arc::new(StringArray::from(vec![k.suite.as_str(); n])),
-            Arc::new(Int32Array::from(vec![k.task_id; n])),
-            Arc::new(Int32Array::from(vec![k.init_state_id; n])),
-            Arc::new(Int64Array::from(vec![k.seed; n])),
+        let (n, k) = (self.step.len(), &self.key);
+        let poses = object_poses_column(self.object_names, n, self.object_pos, self.object_quat)?;
+        let mut columns = k.columns(n);
+        columns.extend::<[ArrayRef; 8]>([
             Arc::new(Int32Array::from(self.step.clone())),
             Arc::new(Int32Array::from(self.step)),
             Arc::new(BooleanArray::from(vec![false; n])),
             fixed_f32(self.action, 14)?,
             fixed_f64(self.agent_pos, 14)?,
-            list(DataType::Struct(pose_fields), Arc::new(poses), std::iter::repeat_n(n_obj, n))?,
+            poses,
             Arc::new(BooleanArray::from(self.goal)),
             Arc::new(Int32Array::from(self.reward)),
-        ];
+        ]);
         // nothing is rendered for a policy yet, and no ALOHA policy reports model timings
         columns.extend(timing_columns(self.sim_ms, self.policy_ms, vec![0.0; n], &vec![None; n]));
         RecordBatch::try_new(tables::aloha_steps(), columns)

@@ -558,11 +558,7 @@ fn run_libero(
         Err(panic) => {
             // The cached env may be mid-step; drop it.
             WORKER_ENV.with(|c| c.borrow_mut().take());
-            let msg = panic
-                .downcast_ref::<String>()
-                .cloned()
-                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
-                .unwrap_or_else(|| "panic".into());
+            let msg = panic_message(panic.as_ref());
             let s =
                 EpisodeSummary::failed_to_start((String::new(), ""), EpisodeError { kind: "internal", message: msg });
             (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s)
@@ -615,14 +611,19 @@ fn run_aloha(
         Ok(r) => r,
         Err(panic) => {
             ALOHA_WORKER.with(|c| c.borrow_mut().take());
-            let msg = panic
-                .downcast_ref::<String>()
-                .cloned()
-                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
-                .unwrap_or_else(|| "panic".into());
+            let msg = panic_message(panic.as_ref());
             failed("internal", msg)
         }
     }
+}
+
+/// The text of a caught panic (an episode's `internal` error).
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_else(|| "panic".into())
 }
 
 /// What `rollout` returns for an episode whose part is stored: read from the part.

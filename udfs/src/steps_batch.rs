@@ -44,6 +44,17 @@ impl EpisodeKey {
         }
     }
 
+    /// The key columns every steps table begins with, repeated for `n` rows.
+    pub(crate) fn columns(&self, n: usize) -> Vec<ArrayRef> {
+        vec![
+            Arc::new(StringArray::from(vec![self.episode_key.as_str(); n])),
+            Arc::new(StringArray::from(vec![self.suite.as_str(); n])),
+            Arc::new(Int32Array::from(vec![self.task_id; n])),
+            Arc::new(Int32Array::from(vec![self.init_state_id; n])),
+            Arc::new(Int64Array::from(vec![self.seed; n])),
+        ]
+    }
+
     /// File name of the episode's parts: `libero_spatial-t03-i012-s7.parquet`, with `-v<variant>`
     /// before the extension for a perturbed episode.
     pub fn part_name(&self) -> String {
@@ -159,21 +170,10 @@ impl StepsBatchBuilder {
     pub fn finish(self) -> Result<RecordBatch, ArrowError> {
         let n = self.step.len();
         let k = &self.key;
-        let n_obj = self.object_names.len();
-        let names: StringArray = (0..n).flat_map(|_| self.object_names.iter().map(|s| Some(s.as_str()))).collect();
-        let pose_fields = tables::object_pose_fields();
-        let poses = StructArray::try_new(
-            pose_fields.clone(),
-            vec![Arc::new(names), fixed_f64(self.object_pos, 3)?, fixed_f64(self.object_quat, 4)?],
-            None,
-        )?;
+        let poses = object_poses_column(&self.object_names, n, self.object_pos, self.object_quat)?;
         let contacts: StringArray = self.contacts.iter().map(|&i| Some(self.object_names[i].as_str())).collect();
-        let mut columns: Vec<ArrayRef> = vec![
-            Arc::new(StringArray::from(vec![k.episode_key.as_str(); n])),
-            Arc::new(StringArray::from(vec![k.suite.as_str(); n])),
-            Arc::new(Int32Array::from(vec![k.task_id; n])),
-            Arc::new(Int32Array::from(vec![k.init_state_id; n])),
-            Arc::new(Int64Array::from(vec![k.seed; n])),
+        let mut columns = k.columns(n);
+        columns.extend::<[ArrayRef; 12]>([
             Arc::new(Int32Array::from(self.step)),
             Arc::new(Int32Array::from(self.policy_step.clone())),
             Arc::new(BooleanArray::from(self.policy_step.iter().map(Option::is_none).collect::<Vec<_>>())),
@@ -182,14 +182,29 @@ impl StepsBatchBuilder {
             fixed_f64(self.eef_quat, 4)?,
             fixed_f64(self.gripper_qpos, 2)?,
             fixed_f64(self.joint_pos, 7)?,
-            list(DataType::Struct(pose_fields), Arc::new(poses), std::iter::repeat_n(n_obj, n))?,
+            poses,
             Arc::new(BooleanArray::from(self.goal)),
             list(DataType::Boolean, Arc::new(BooleanArray::from(self.goal_terms)), self.goal_terms_len)?,
             list(DataType::Utf8, Arc::new(contacts), self.contacts_len)?,
-        ];
+        ]);
         columns.extend(timing_columns(self.sim_ms, self.policy_ms, self.render_ms, &self.timing));
         RecordBatch::try_new(tables::steps(), columns)
     }
+}
+
+/// `object_poses` of `n` steps: every object's pose per step, the objects named in `names`' order;
+/// `pos` and `quat` hold 3 and 4 values per object and step.
+pub(crate) fn object_poses_column(
+    names: &[impl AsRef<str>],
+    n: usize,
+    pos: Vec<f64>,
+    quat: Vec<f64>,
+) -> Result<ArrayRef, ArrowError> {
+    let all: StringArray = (0..n).flat_map(|_| names.iter().map(|s| Some(s.as_ref()))).collect();
+    let fields = tables::object_pose_fields();
+    let poses =
+        StructArray::try_new(fields.clone(), vec![Arc::new(all), fixed_f64(pos, 3)?, fixed_f64(quat, 4)?], None)?;
+    list(DataType::Struct(fields), Arc::new(poses), std::iter::repeat_n(names.len(), n))
 }
 
 /// The step-timing columns every benchmark's steps table ends with (`sim_ms` … `forward_batch`).

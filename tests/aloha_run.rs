@@ -142,6 +142,130 @@ fn aloha_sim_episodes_run_through_the_pipeline_and_score_like_libero() {
     }
 }
 
+/// Per step of one episode (ordered): the action, `agent_pos` after the step, and the render time.
+fn actions_and_state(run: &Path, task: u32) -> Vec<(Vec<f64>, Vec<f64>, f64)> {
+    let parse = |s: &str| -> Vec<f64> { s.split(';').map(|x| x.parse().unwrap()).collect() };
+    let query = format!(
+        "SELECT array_to_string(action, ';'), array_to_string(agent_pos, ';'), render_ms FROM steps WHERE task_id = {task} ORDER BY step"
+    );
+    sql(run, &query).iter().map(|r| (parse(&r[0]), parse(&r[1]), r[2].parse().unwrap())).collect()
+}
+
+/// openpi's ALOHA-sim example through `pipeline run --policy openpi:ws://...` against the toy
+/// openpi server in its ALOHA mode, which refuses any request but `{"state": f64 (14,),
+/// "images": {"cam_high": u8 (3, 224, 224)}}` with the black bars of a padded 480 × 640 frame:
+/// the `top` camera is rendered only when a chunk is due, the state sent is the `agent_pos`
+/// observed before the step, and 10 of each 50-action chunk are executed.
+#[test]
+fn an_openpi_served_policy_runs_on_aloha_sim_as_openpis_example_runs_it() {
+    let server = crate::remote_policy::ToyServer::start(&["--aloha", "--chunk", "50"]);
+    let dir = tmp("openpi");
+    let specs = aloha_specs(&dir, "1");
+    let run = dir.join("run");
+    let policy = format!("openpi:{}", server.url);
+    let (s, r) = (specs.to_str().unwrap(), run.to_str().unwrap());
+    ok(pipeline(&["run", s, "--out", r, "--policy", &policy, "--max-steps", "25", "--jobs", "1"]));
+    let e = sql(&run, "SELECT task_id, n_policy_steps, COALESCE(error, 'none') FROM episodes ORDER BY task_id");
+    assert_eq!(e, [["0", "25", "none"], ["1", "25", "none"]], "the server refuses anything but the example's dict");
+    // (CSV doubles the JSON's quotes)
+    let identity = sql(&run, "SELECT policy_identity FROM manifest").concat().join(",").replace("\"\"", "\"");
+    for needle in ["cam_high", "\"executed\":10", "\"predicted\":50", "aloha_sim"] {
+        assert!(identity.contains(needle), "{needle} not in {identity}");
+    }
+    for task in [0, 1] {
+        let steps = actions_and_state(&run, task);
+        assert_eq!(steps.len(), 25);
+        for (t, (action, _, render_ms)) in steps.iter().enumerate() {
+            // the top camera is rendered for a query only: steps 0, 10, 20
+            assert_eq!(*render_ms > 0.0, t % 10 == 0, "step {t}: render_ms {render_ms}");
+            if t % 10 != 0 {
+                // within a chunk the toy's actions step by 0.01 in every joint
+                let prev = &steps[t - 1].0;
+                assert!(
+                    action.iter().zip(prev).all(|(a, p)| (a - p - 0.01).abs() < 1e-5),
+                    "step {t}: {action:?} {prev:?}"
+                );
+            } else if t > 0 {
+                // a new chunk starts from the agent_pos after the previous step: the same offset
+                // (0.01 plus the image's centre pixel term) in all 14 components
+                let state = &steps[t - 1].1;
+                let d: Vec<f64> = action.iter().zip(state).map(|(a, s)| a - s).collect();
+                assert!(d.iter().all(|x| (x - d[0]).abs() < 1e-5), "step {t}: {d:?}");
+                assert!((0.01 - 1e-5..=0.01 + 3.0 * 255.0 / 1e5 + 1e-5).contains(&d[0]), "step {t}: {d:?}");
+            }
+        }
+    }
+}
+
+/// A TorchScript module made for ALOHA-sim (`model.json` says `"benchmark": "aloha_sim"`), traced
+/// with libtorch, through `pipeline run`: it sees the 480 × 640 `top` frame and the 14-D state and
+/// returns 14-D chunks; a LIBERO module is refused on ALOHA specs, and this one on LIBERO specs.
+#[test]
+fn a_torchscript_module_for_aloha_sim_runs_and_each_benchmark_refuses_the_others_module() {
+    use tch::{CModule, Device, Kind, Tensor};
+    let dir = tmp("torchscript");
+    let file = dir.join("aloha.pt");
+    let inputs =
+        [Tensor::rand([1, 3, 480, 640], (Kind::Float, Device::Cpu)), Tensor::rand([1, 14], (Kind::Float, Device::Cpu))];
+    // hold the observed joints, + 0.1 × the image's mean (in every joint) + 0.001 per chunk position
+    CModule::create_by_tracing("ToyAloha", "forward", &inputs, &mut |x| {
+        let mean = x[0].mean_dim([1i64, 2, 3].as_slice(), true, Kind::Float).reshape([1, 1, 1]);
+        let steps = Tensor::arange(4, (Kind::Float, Device::Cpu)).reshape([1, 4, 1]) * 0.001;
+        vec![x[1].unsqueeze(1) + mean * 0.1 + steps]
+    })
+    .unwrap()
+    .save(&file)
+    .unwrap();
+    std::fs::write(
+        dir.join("aloha.json"),
+        r#"{"benchmark": "aloha_sim", "inputs": ["top", "state"], "preprocessing": "none", "chunk_size": 4, "replan_steps": 3}"#,
+    )
+    .unwrap();
+    let specs = aloha_specs(&dir, "1");
+    let run = dir.join("run");
+    let policy = format!("torchscript:{}", file.display());
+    let (s, r) = (specs.to_str().unwrap(), run.to_str().unwrap());
+    ok(pipeline(&["run", s, "--out", r, "--policy", &policy, "--max-steps", "9"]));
+    let e = sql(&run, "SELECT n_policy_steps, COALESCE(error, 'none') FROM episodes ORDER BY task_id");
+    assert_eq!(e, [["9", "none"], ["9", "none"]]);
+    let identity = sql(&run, "SELECT policy_identity FROM manifest").concat().join(",");
+    assert!(identity.contains("aloha_sim") && identity.contains("480x640"), "{identity}");
+    let steps = actions_and_state(&run, 0);
+    for (t, (action, _, render_ms)) in steps.iter().enumerate() {
+        assert_eq!(*render_ms > 0.0, t % 3 == 0, "step {t}: render_ms {render_ms}");
+        if t % 3 != 0 {
+            assert!(action.iter().zip(&steps[t - 1].0).all(|(a, p)| (a - p - 0.001).abs() < 1e-5), "step {t}");
+        } else if t > 0 {
+            // from the state before the step, + 0.1 × a rendered frame's mean (a real picture:
+            // neither black nor white)
+            let d: Vec<f64> = action.iter().zip(&steps[t - 1].1).map(|(a, s)| a - s).collect();
+            assert!(d.iter().all(|x| (x - d[0]).abs() < 1e-5), "step {t}: {d:?}");
+            assert!((0.005..0.095).contains(&d[0]), "step {t}: the image term {d:?}");
+        }
+    }
+
+    // each benchmark refuses the other's module before any episode
+    let refused = |specs: &Path, policy: &str, needle: &str| {
+        let out_dir = dir.join(format!("refused-{}", needle.len()));
+        let out = pipeline(&["run", specs.to_str().unwrap(), "--out", out_dir.to_str().unwrap(), "--policy", policy]);
+        let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(!out.status.success() && stderr.contains(needle), "{stderr}");
+        assert!(!out_dir.join("episodes").exists());
+    };
+    std::fs::create_dir_all(dir.join("libero")).unwrap();
+    let libero_specs = libero_e2e::spatial_task0_specs(&dir.join("libero"), "1");
+    refused(&libero_specs, &policy, "\"benchmark\": \"aloha_sim\"");
+    let libero_module = dir.join("libero.pt");
+    std::fs::copy(&file, &libero_module).unwrap();
+    std::fs::write(
+        dir.join("libero.json"),
+        r#"{"inputs": ["agentview", "state"], "image_size": 32, "preprocessing": "rot180"}"#,
+    )
+    .unwrap();
+    refused(&specs, &format!("torchscript:{}", libero_module.display()), "LIBERO module");
+    refused(&specs, &format!("{policy}?batch=2"), "?batch= shares forwards between LIBERO episodes only");
+}
+
 /// `pipeline failures` on a run: (task_id, failure_mode, max_reward) per failed episode.
 fn failure_modes(run: &Path, out: &Path, extra: &[&str]) -> Vec<(String, String, String)> {
     let mut args = vec!["failures", "--run", run.to_str().unwrap(), "--out", out.to_str().unwrap()];

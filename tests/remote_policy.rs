@@ -19,13 +19,13 @@ fn python() -> PathBuf {
     py
 }
 
-struct ToyServer {
+pub(crate) struct ToyServer {
     child: Child,
-    url: String,
+    pub(crate) url: String,
 }
 
 impl ToyServer {
-    fn start(args: &[&str]) -> ToyServer {
+    pub(crate) fn start(args: &[&str]) -> ToyServer {
         let mut child = Command::new(python())
             .arg(repo_root().join("scripts/reference/openpi_toy_server.py"))
             .args(["--port", "0", "--require-images"])

@@ -158,7 +158,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             Some(b) => format!("{:x}", Sha256::digest(b.provenance.to_string().as_bytes())),
         },
         policy: args.policy.name(),
-        policy_identity: args.policy.resolve_identity()?,
+        policy_identity: args.policy.resolve_identity(benchmark)?,
         num_steps_wait: args.wait_steps as i32,
         max_steps: match benchmark {
             Benchmark::Libero => protocol.max_steps.iter().map(|(s, n)| (s.name(), *n as i32)).collect(),

@@ -9,6 +9,8 @@
 //! | `expert` | [`ScriptedAloha`]: plays the scripted control the env recorded for the episode (privileged) |
 //! | `random` | [`RandomWalkAloha`]: a seeded random walk of the joints, grippers uniform (baseline) |
 //! | `nan-at:N` | [`NanAtAloha`]: holds the start pose, a NaN at policy step N (error rows) |
+//! | `openpi:ws://…` | [`crate::remote::OpenpiAlohaPolicy`]: openpi's ALOHA-sim example's client |
+//! | `torchscript:<file>` | `models::torchscript_aloha::TorchScriptAloha` (feature `torch`): a module whose `model.json` says `"benchmark": "aloha_sim"` |
 
 use crate::{CameraImage, PolicyError};
 use rand::{Rng, SeedableRng};
@@ -26,7 +28,8 @@ pub struct AlohaObservation {
     pub policy_step: u32,
     /// `obs["agent_pos"]`: per arm 6 joint positions and the normalized left-finger position.
     pub agent_pos: [f64; ALOHA_ACTION_DIM],
-    /// `obs["pixels"]["top"]` (480 × 640, upright), for policies that see ([`AlohaPolicy::sees_top_camera`]).
+    /// `obs["pixels"]["top"]` (480 × 640, upright), when the policy asked for it before this step
+    /// ([`AlohaPolicy::wants_top_camera`]).
     pub top: Option<CameraImage>,
     /// The scripted control's joint targets for this episode (privileged: made from where the
     /// seed put the objects), for [`AlohaPolicy::wants_script`] policies; entry t is step t's.
@@ -42,8 +45,9 @@ pub trait AlohaPolicy: Send {
     fn wants_script(&self) -> bool {
         false
     }
-    /// Whether the env must render the `top` camera for it.
-    fn sees_top_camera(&self) -> bool {
+    /// Whether the env must render the `top` camera before the next step (asked every step: a
+    /// chunked policy needs it only when it queries its model).
+    fn wants_top_camera(&self) -> bool {
         false
     }
 }

@@ -10,17 +10,18 @@
 use crate::Action;
 use std::collections::VecDeque;
 
-/// The queue of a chunk's actions still to execute.
+/// The queue of a chunk's actions still to execute; `A` is the benchmark's action (LIBERO's
+/// 7-D [`Action`] by default, ALOHA-sim's 14-D [`crate::aloha::AlohaAction`]).
 #[derive(Debug, Clone)]
-pub struct ActionChunker {
+pub struct ActionChunker<A = Action> {
     replan_steps: usize,
-    queue: VecDeque<Action>,
+    queue: VecDeque<A>,
     /// Length of the last chunk the model predicted (None before the first).
     last_predicted: Option<usize>,
     queries: u64,
 }
 
-impl ActionChunker {
+impl<A> ActionChunker<A> {
     /// Execute at most `replan_steps` (≥ 1) actions of each predicted chunk.
     pub fn new(replan_steps: usize) -> Self {
         ActionChunker { replan_steps: replan_steps.max(1), queue: VecDeque::new(), last_predicted: None, queries: 0 }
@@ -41,7 +42,7 @@ impl ActionChunker {
     /// Queue the first `replan_steps` actions of a predicted chunk. A chunk shorter than
     /// `replan_steps` is executed whole (and then the model is asked again); an empty chunk is an
     /// error, since the loop would have no action.
-    pub fn push_chunk(&mut self, chunk: Vec<Action>) -> Result<(), String> {
+    pub fn push_chunk(&mut self, chunk: Vec<A>) -> Result<(), String> {
         if chunk.is_empty() {
             return Err("the model returned an empty action chunk".into());
         }
@@ -53,7 +54,7 @@ impl ActionChunker {
     }
 
     /// The next action to execute, if any is queued.
-    pub fn next_action(&mut self) -> Option<Action> {
+    pub fn next_action(&mut self) -> Option<A> {
         self.queue.pop_front()
     }
 

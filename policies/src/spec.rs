@@ -2,9 +2,11 @@
 
 use crate::placement::{ModelDevice, Quantization, devices_text, parse_devices};
 use crate::remote::openpi::{LIBERO_REPLAN_STEPS, OpenpiConfig, OpenpiPolicy};
+use crate::remote::openpi_aloha::{ALOHA_REPLAN_STEPS, OpenpiAlohaPolicy};
 use crate::remote::starvla::{StarVlaConfig, StarVlaPolicy};
 use crate::remote::vla_eval::{VlaEvalConfig, VlaEvalPolicy};
 use crate::{Expert, ExpertDrop, LiftPolicy, NanAtPolicy, Policy, PolicyError, RandomPolicy};
+use libero_schema::Benchmark;
 use std::fmt;
 use std::str::FromStr;
 
@@ -32,8 +34,10 @@ pub enum PolicySpec {
     /// `action_head--*.pt`, `proprio_projector--*.pt`, `dataset_statistics.json`; the same options
     /// as `openvla:`): two cameras and the state, an 8-action chunk per query, executed whole.
     Oft(CheckpointOptions),
-    /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`).
-    Openpi { url: String, replan_steps: usize },
+    /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`);
+    /// without `replan`, the executed part of each chunk is the benchmark's example's (5 on LIBERO,
+    /// 10 on ALOHA-sim; [`PolicySpec::openpi_replan_steps`]).
+    Openpi { url: String, replan_steps: Option<usize> },
     /// A model served by vla-eval's model server (`vla-eval:ws://host:port`): the server's
     /// observation params from its HELLO decide what is sent; it keeps the action chunks.
     VlaEval { url: String },
@@ -140,7 +144,7 @@ impl PolicySpec {
             PolicySpec::OpenVla(o) => load_openvla(o, &self.to_string())?,
             PolicySpec::Oft(o) => load_oft(o, &self.to_string())?,
             PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
-                replan_steps: *replan_steps,
+                replan_steps: Self::openpi_replan_steps(*replan_steps, Benchmark::Libero),
                 ..OpenpiConfig::new(url.clone())
             })?),
             PolicySpec::VlaEval { url } => Box::new(VlaEvalPolicy::connect(VlaEvalConfig::new(url.clone()))?),
@@ -156,25 +160,64 @@ impl PolicySpec {
             PolicySpec::Random => Box::new(RandomWalkAloha::new()),
             PolicySpec::Expert => Box::new(ScriptedAloha),
             PolicySpec::NanAt(n) => Box::new(NanAtAloha::new(*n)),
+            PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiAlohaPolicy::connect(OpenpiConfig {
+                replan_steps: Self::openpi_replan_steps(*replan_steps, Benchmark::AlohaSim),
+                ..OpenpiConfig::new(url.clone())
+            })?),
+            #[cfg(feature = "torch")]
+            PolicySpec::TorchScript { file, batch: None } => {
+                Box::new(crate::models::torchscript_aloha::TorchScriptAloha::load(file)?)
+            }
             _ => {
                 return Err(PolicyError {
                     policy: self.to_string(),
-                    detail: self.check_benchmark(libero_schema::Benchmark::AlohaSim).unwrap_err(),
+                    detail: self
+                        .check_benchmark(Benchmark::AlohaSim)
+                        .err()
+                        .unwrap_or_else(|| "this build has no ALOHA-sim form of it (built without torch)".into()),
                 });
             }
         })
     }
 
+    /// The actions executed of each openpi chunk: the `?replan=N` given, else what the
+    /// benchmark's openpi example executes (`examples/libero`: 5; `examples/aloha_sim`'s
+    /// `ActionChunkBroker`: 10).
+    pub fn openpi_replan_steps(given: Option<usize>, benchmark: Benchmark) -> usize {
+        given.unwrap_or(match benchmark {
+            Benchmark::Libero => LIBERO_REPLAN_STEPS,
+            Benchmark::AlohaSim => ALOHA_REPLAN_STEPS,
+        })
+    }
+
     /// Whether this policy can act on `benchmark`: a LIBERO policy sends 7-D end-effector deltas,
-    /// an ALOHA-sim env takes 14-D joint targets. Checked before a run starts.
-    pub fn check_benchmark(&self, benchmark: libero_schema::Benchmark) -> Result<(), String> {
-        use libero_schema::Benchmark;
+    /// an ALOHA-sim env takes 14-D joint targets. Checked before a run starts; a TorchScript
+    /// module's `model.json` says which benchmark it is for.
+    pub fn check_benchmark(&self, benchmark: Benchmark) -> Result<(), String> {
+        let module_for = |file: &std::path::Path| torchscript_benchmark(file);
         match benchmark {
-            Benchmark::Libero => Ok(()),
+            Benchmark::Libero => match self {
+                PolicySpec::TorchScript { file, .. } if module_for(file) == Ok(Benchmark::AlohaSim) => Err(format!(
+                    "{}'s model.json says \"benchmark\": \"aloha_sim\": it returns 14-D joint actions, and these specs are LIBERO's (7-D end-effector actions); run it on an ALOHA-sim spec (pipeline specs --benchmark aloha_sim)",
+                    file.display()
+                )),
+                _ => Ok(()),
+            },
             Benchmark::AlohaSim => match self {
-                PolicySpec::Random | PolicySpec::Expert | PolicySpec::NanAt(_) => Ok(()),
+                PolicySpec::Random | PolicySpec::Expert | PolicySpec::NanAt(_) | PolicySpec::Openpi { .. } => Ok(()),
+                PolicySpec::TorchScript { file, batch } => match (module_for(file)?, batch) {
+                    (Benchmark::AlohaSim, None) => Ok(()),
+                    (Benchmark::AlohaSim, Some(_)) => Err(format!(
+                        "{self}: ?batch= shares forwards between LIBERO episodes only; on ALOHA-sim run torchscript:{} (one forward per episode query)",
+                        file.display()
+                    )),
+                    (Benchmark::Libero, _) => Err(format!(
+                        "{}'s model.json does not say \"benchmark\": \"aloha_sim\", so it is a LIBERO module (7-D end-effector actions), and ALOHA-sim takes 14-D joint actions; export the ALOHA policy with a manifest of inputs [\"top\", \"state\"] and \"benchmark\": \"aloha_sim\" (see policies::models::torchscript_aloha)",
+                        file.display()
+                    )),
+                },
                 _ => Err(format!(
-                    "the policy {self} acts in LIBERO's 7-D end-effector space, and ALOHA-sim (suite aloha_sim) takes {}-D joint actions (per arm 6 joint targets and a gripper); on ALOHA-sim run expert (the scripted control), random or nan-at:N",
+                    "the policy {self} acts in LIBERO's 7-D end-effector space, and ALOHA-sim (suite aloha_sim) takes {}-D joint actions (per arm 6 joint targets and a gripper); on ALOHA-sim run expert (the scripted control), random, nan-at:N, openpi:ws://... or a torchscript module made for aloha_sim",
                     Benchmark::AlohaSim.action_dim()
                 )),
             },
@@ -207,10 +250,27 @@ impl PolicySpec {
 
     /// The identity for the run manifest, asking the policy itself where only it knows (a remote
     /// server's metadata): a server that cannot be reached fails the run before any episode.
-    pub fn resolve_identity(&self) -> Result<serde_json::Value, PolicyError> {
+    pub fn resolve_identity(&self, benchmark: Benchmark) -> Result<serde_json::Value, PolicyError> {
+        match (self, benchmark) {
+            (PolicySpec::Openpi { url, replan_steps }, Benchmark::AlohaSim) => {
+                Ok(OpenpiAlohaPolicy::connect(OpenpiConfig {
+                    replan_steps: Self::openpi_replan_steps(*replan_steps, benchmark),
+                    ..OpenpiConfig::new(url.clone())
+                })?
+                .identity())
+            }
+            #[cfg(feature = "torch")]
+            (PolicySpec::TorchScript { file, .. }, Benchmark::AlohaSim) => {
+                Ok(crate::models::torchscript_aloha::TorchScriptAloha::load(file)?.identity())
+            }
+            _ => self.resolve_libero_identity(),
+        }
+    }
+
+    fn resolve_libero_identity(&self) -> Result<serde_json::Value, PolicyError> {
         match self {
             PolicySpec::Openpi { url, replan_steps } => Ok(OpenpiPolicy::connect(OpenpiConfig {
-                replan_steps: *replan_steps,
+                replan_steps: Self::openpi_replan_steps(*replan_steps, Benchmark::Libero),
                 ..OpenpiConfig::new(url.clone())
             })?
             .identity()),
@@ -316,10 +376,8 @@ impl fmt::Display for PolicySpec {
             PolicySpec::TorchScript { file, batch: Some(b) } => {
                 write!(f, "torchscript:{}?{}", file.display(), b.options().join("&"))
             }
-            PolicySpec::Openpi { url, replan_steps } if *replan_steps == LIBERO_REPLAN_STEPS => {
-                write!(f, "openpi:{url}")
-            }
-            PolicySpec::Openpi { url, replan_steps } => write!(f, "openpi:{url}?replan={replan_steps}"),
+            PolicySpec::Openpi { url, replan_steps: None } => write!(f, "openpi:{url}"),
+            PolicySpec::Openpi { url, replan_steps: Some(n) } => write!(f, "openpi:{url}?replan={n}"),
             PolicySpec::VlaEval { url } => write!(f, "vla-eval:{url}"),
             PolicySpec::StarVla(o) => {
                 let mut options: Vec<String> = o.unnorm_key.iter().map(|k| format!("unnorm={k}")).collect();
@@ -561,6 +619,25 @@ fn checkpoint_options(kind: &str, rest: &str) -> Result<CheckpointOptions, Strin
     Ok(CheckpointOptions { dir: dir.into(), unnorm_key, batch, quant, devices })
 }
 
+/// The benchmark a TorchScript module's `model.json` declares (`"benchmark"`, LIBERO when absent),
+/// read without loading the module (so a run is refused before any model loads).
+fn torchscript_benchmark(file: &std::path::Path) -> Result<Benchmark, String> {
+    let manifest = file.with_extension("json");
+    let text = std::fs::read_to_string(&manifest).map_err(|e| {
+        format!(
+            "{}: {e}; a TorchScript policy needs its manifest beside it (see policies::models::torchscript)",
+            manifest.display()
+        )
+    })?;
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| format!("{}: not JSON: {e}", manifest.display()))?;
+    match v.get("benchmark").and_then(serde_json::Value::as_str) {
+        None | Some("libero") => Ok(Benchmark::Libero),
+        Some("aloha_sim") => Ok(Benchmark::AlohaSim),
+        Some(other) => Err(format!("{}: unknown benchmark {other:?}; known: libero, aloha_sim", manifest.display())),
+    }
+}
+
 /// `<file>[?batch=N[&wait_ms=W]]` of `torchscript:...`.
 fn parse_torchscript(rest: &str) -> Result<PolicySpec, String> {
     let (file, options) = model_options("torchscript", rest, &["batch", "wait_ms"])?;
@@ -574,9 +651,9 @@ fn parse_openpi(rest: &str) -> Result<PolicySpec, String> {
         return Err(format!("openpi:{rest}: the server address must be a ws:// URL, e.g. openpi:ws://localhost:8000"));
     }
     let replan_steps = match query {
-        None => LIBERO_REPLAN_STEPS,
+        None => None,
         Some(q) => match q.strip_prefix("replan=").map(str::parse::<usize>) {
-            Some(Ok(n)) if n >= 1 => n,
+            Some(Ok(n)) if n >= 1 => Some(n),
             _ => {
                 return Err(format!(
                     "openpi:{rest}: the only option is ?replan=N with N >= 1 (actions executed per chunk)"
@@ -682,7 +759,10 @@ mod tests {
     #[test]
     fn openpi_specs_parse_and_print_back() {
         let p: PolicySpec = "openpi:ws://localhost:8000".parse().unwrap();
-        assert_eq!(p, PolicySpec::Openpi { url: "ws://localhost:8000".into(), replan_steps: 5 });
+        assert_eq!(p, PolicySpec::Openpi { url: "ws://localhost:8000".into(), replan_steps: None });
+        assert_eq!(PolicySpec::openpi_replan_steps(None, Benchmark::Libero), 5);
+        assert_eq!(PolicySpec::openpi_replan_steps(None, Benchmark::AlohaSim), 10);
+        assert_eq!(PolicySpec::openpi_replan_steps(Some(3), Benchmark::AlohaSim), 3);
         assert_eq!(p.to_string(), "openpi:ws://localhost:8000");
         let p: PolicySpec = "openpi:ws://h:1?replan=10".parse().unwrap();
         assert_eq!(p.to_string(), "openpi:ws://h:1?replan=10");

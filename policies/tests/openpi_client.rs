@@ -157,7 +157,7 @@ fn the_actions_are_the_toy_function_of_what_we_sent() {
     for (t, with_images) in [(0, false), (7, true)] {
         let o = obs(t);
         let reply = conn.infer(&libero_request(&o, PROMPT, with_images.then_some(&im))).unwrap();
-        let chunk = libero_policies::remote::openpi::actions_of(&reply).unwrap();
+        let chunk = libero_policies::remote::openpi::actions_of::<7>(&reply).unwrap();
         assert_eq!(chunk, expected_chunk(&o, PROMPT, with_images.then_some(&im), 10));
         // the server saw our keys and our prompt as str, and decoded our arrays (it checks their
         // dtypes and shapes and would have failed otherwise)

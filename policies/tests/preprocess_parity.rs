@@ -44,12 +44,16 @@ fn fixtures() -> &'static Path {
         for p in picks {
             assert!(frames.join(p).exists(), "no reference frame {p} in {}: run ./setup.sh first", frames.display());
         }
+        // an ALOHA-sim `top` frame (upright 480x640) of the ALOHA bundle's golden episodes
+        let top = root.join("data/aloha/golden/transfer_cube_seed1000/top_s050.npy");
+        assert!(top.exists(), "no ALOHA-sim golden frame {}: run ./setup.sh first", top.display());
         let out = std::env::temp_dir().join(format!("libero-preprocess-parity-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&out);
         let run = Command::new(python)
             .arg(root.join("scripts/reference/preprocess_fixtures.py"))
             .arg(&out)
             .args(picks.map(|p| frames.join(p)))
+            .arg(&top)
             .output()
             .expect("run the reference python");
         assert!(
@@ -161,6 +165,25 @@ fn openpi_resize_with_pad_is_exact() {
     for name in image_names() {
         let ours = ImagePipeline::OPENPI.apply(&load(&name, "input")).unwrap();
         assert_eq!(ours, load(&name, "resize_with_pad224"), "{name}");
+    }
+}
+
+/// openpi's ALOHA-sim `cam_high` (`resize_with_pad` 224 of the upright 480 × 640 `top` frame,
+/// then channels first), on a synthetic frame and a rendered one: exact.
+#[test]
+fn openpi_aloha_cam_high_is_exact() {
+    let names: Vec<String> =
+        json("meta.json")["aloha_images"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().to_string()).collect();
+    assert_eq!(names.len(), 2, "{names:?}");
+    for name in names {
+        let input = load(&name, "input");
+        let top = libero_policies::CameraImage { width: input.width, height: input.height, rgb: input.rgb };
+        let chw = libero_policies::remote::openpi_aloha::cam_high(&top).unwrap();
+        let plane = 224 * 224;
+        let hwc: Vec<u8> = (0..plane).flat_map(|i| [chw[i], chw[plane + i], chw[2 * plane + i]]).collect();
+        let theirs = load(&name, "pad224");
+        assert_eq!((theirs.width, theirs.height), (224, 224));
+        assert!(hwc == theirs.rgb, "{name}: {:?}", diff(&RgbImage::new(224, 224, hwc.clone()).unwrap(), &theirs));
     }
 }
 

@@ -18,6 +18,14 @@ expected chunk on its side and prove both encoding directions:
 It checks the request's types first (state float64 (8,), prompt str, images uint8 (H, W, 3)) and
 fails like a real policy when they are wrong.
 
+With --aloha it is a policy of openpi's ALOHA-sim example instead (examples/aloha_sim: the dict
+`{"state": float64 (14,), "images": {"cam_high": uint8 (3, 224, 224)}}`, no prompt): it requires
+exactly those keys, types and shapes, and the padding `resize_with_pad` leaves on a 480x640 frame
+(rows 0-27 and 196-223 black in every channel, the picture between them not), and answers
+`{"actions": float32 (chunk, 14)}` with
+
+    actions[i, j] = state[j] + 0.01 * (i + 1) + cam_high[:, 112, 112].sum() / 100000
+
 Faults, by request number n (1-based, counted over all connections of the server):
   --delay-at N --delay-s S     sleep S seconds before answering request N
   --drop-at N                  abort the TCP connection instead of answering request N
@@ -64,11 +72,30 @@ def toy_actions(obs: dict, chunk: int, require_images: bool = False) -> np.ndarr
     return (base[None, :] + 0.01 * (i + 1)).astype(np.float32)
 
 
+def toy_aloha_actions(obs: dict, chunk: int) -> np.ndarray:
+    if sorted(obs) != ["images", "state"]:
+        raise TypeError(f"openpi's aloha_sim example sends exactly state and images, got {sorted(obs)}")
+    state, images = obs["state"], obs["images"]
+    if not (isinstance(state, np.ndarray) and state.dtype == np.float64 and state.shape == (14,)):
+        raise TypeError(f"state must be float64 (14,), got {type(state)} {getattr(state, 'dtype', None)} {getattr(state, 'shape', None)}")
+    if not (isinstance(images, dict) and sorted(images) == ["cam_high"]):
+        raise TypeError(f"images must be {{'cam_high': ...}}, got {images if not isinstance(images, dict) else sorted(images)}")
+    cam = images["cam_high"]
+    if not (isinstance(cam, np.ndarray) and cam.dtype == np.uint8 and cam.shape == (3, 224, 224)):
+        raise TypeError(f"cam_high must be uint8 (3, 224, 224), got {getattr(cam, 'dtype', None)} {getattr(cam, 'shape', None)}")
+    if cam[:, :28].any() or cam[:, 196:].any() or not cam[:, 28:196].any():
+        raise ValueError("cam_high is not a 480x640 frame after resize_with_pad(224, 224): rows 0-27 and 196-223 must be black, the rest not")
+    i = np.arange(chunk, dtype=np.float64)[:, None]
+    base = state + int(cam[:, 112, 112].astype(np.int64).sum()) / 100000.0
+    return (base[None, :] + 0.01 * (i + 1)).astype(np.float32)
+
+
 class ToyServer:
     def __init__(self, args):
         self.args = args
         self.requests = 0
-        self.metadata = {"name": "toy", "action_horizon": args.chunk, "action_dim": 7, "scale": np.array([0.5, 0.01], dtype=np.float32)}
+        dim = 14 if args.aloha else 7
+        self.metadata = {"name": "toy", "action_horizon": args.chunk, "action_dim": dim, "scale": np.array([0.5, 0.01], dtype=np.float32)}
 
     async def handler(self, websocket):
         packer = msgpack_numpy.Packer()
@@ -95,7 +122,10 @@ class ToyServer:
                 start = time.monotonic()
                 if n == a.error_at:
                     raise RuntimeError(f"toy policy failure at request {n}")
-                reply = {"actions": toy_actions(obs, a.chunk, a.require_images), "echo": {"prompt": obs["prompt"], "keys": sorted(obs)}}
+                if a.aloha:
+                    reply = {"actions": toy_aloha_actions(obs, a.chunk)}
+                else:
+                    reply = {"actions": toy_actions(obs, a.chunk, a.require_images), "echo": {"prompt": obs["prompt"], "keys": sorted(obs)}}
                 reply["server_timing"] = {"infer_ms": (time.monotonic() - start) * 1000}
                 await websocket.send(packer.pack(reply))
             except websockets.ConnectionClosed:
@@ -124,6 +154,7 @@ def main():
     p.add_argument("--drop-at", type=int, default=0)
     p.add_argument("--error-at", type=int, default=0)
     p.add_argument("--require-images", action="store_true")
+    p.add_argument("--aloha", action="store_true", help="a policy of openpi's ALOHA-sim example (14-D)")
     p.add_argument("--bad-reply-at", type=int, default=0)
     p.add_argument("--bad-reply", choices=["no-actions", "garbage", "wrong-shape"], default="garbage")
     asyncio.run(ToyServer(p.parse_args()).run())

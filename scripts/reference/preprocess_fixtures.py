@@ -1,6 +1,6 @@
 """Reference outputs for the policy pre/post-processing parity test (test time only).
 
-usage: preprocess_fixtures.py OUT_DIR [FRAME.png ...]
+usage: preprocess_fixtures.py OUT_DIR [FRAME.png ...] [TOP.npy ...]
 
 Run by `policies/tests/preprocess_parity.rs` with the reference venv's python (numpy, Pillow,
 robosuite), into a temporary folder. Each step is computed the way the published evaluation code
@@ -23,6 +23,12 @@ images (per input `<name>`; uint8 HxWx3 `.npy`):
                              (TensorFlow is not in the venv; the transcription follows TF's
                              CPU kernel, crop_and_resize_op.cc, and image_ops_impl.py)
   <name>__openvla.npy        the whole OpenVLA chain: rot180 -> jpeg95 -> lanczos224 -> crop09
+
+ALOHA-sim's `cam_high` (openpi's examples/aloha_sim; per input `<name>`, listed in meta.json's
+"aloha_images"): a synthetic 480x640 pattern and each TOP.npy given (an upright 480x640x3 `top`
+frame of the ALOHA bundle's golden episodes), no rotation:
+  <name>__input.npy          the frame as gym-aloha returns obs["pixels"]["top"]
+  <name>__pad224.npy         resize_with_pad(frame, 224, 224), HWC (the client then makes it CHW)
 
 proprio.json (floats as IEEE bit patterns): quaternions (x, y, z, w) and robosuite.utils.transform_utils.quat2axisangle of
   each (the function the OpenVLA/OFT/openpi loops copy), plus a LIBERO state
@@ -156,6 +162,17 @@ def images(out: Path, frames):
     return names
 
 
+def aloha_images(out: Path, tops):
+    inputs = {"aloha_synthetic480x640": synthetic(480, 640)}
+    for p in tops:
+        inputs[f"aloha_{Path(p).parent.name}_{Path(p).stem}"] = np.load(p)
+    for name, img in inputs.items():
+        assert img.shape == (480, 640, 3) and img.dtype == np.uint8, (name, img.shape, img.dtype)
+        np.save(out / f"{name}__input.npy", np.ascontiguousarray(img))
+        np.save(out / f"{name}__pad224.npy", np.ascontiguousarray(resize_with_pad(img, 224, 224), dtype=np.uint8))
+    return list(inputs)
+
+
 def bits(a):
     """float64 values as their IEEE bit patterns (JSON readers need not round-trip floats)."""
     return [int(v) for v in np.asarray(a, dtype=np.float64).view(np.uint64)]
@@ -237,12 +254,13 @@ def actions(out: Path):
 def main():
     out = Path(sys.argv[1])
     out.mkdir(parents=True, exist_ok=True)
-    names = images(out, sys.argv[2:])
+    names = images(out, [a for a in sys.argv[2:] if not a.endswith(".npy")])
+    aloha = aloha_images(out, [a for a in sys.argv[2:] if a.endswith(".npy")])
     proprio(out)
     actions(out)
     import PIL
 
-    meta = {"images": names, "resize_shapes": RESIZE_SHAPES, "numpy": np.__version__, "pillow": PIL.__version__}
+    meta = {"images": names, "aloha_images": aloha, "resize_shapes": RESIZE_SHAPES, "numpy": np.__version__, "pillow": PIL.__version__}
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
 
 

@@ -12,25 +12,36 @@ use crate::goal_evidence::GoalChanges;
 use crate::steps_batch::{EpisodeKey, fixed_f32, fixed_f64, object_poses_column, timing_columns};
 use arrow::array::{ArrayRef, BooleanArray, Int32Array, RecordBatch};
 use arrow::error::ArrowError;
-use libero_policies::PolicyError;
 use libero_policies::aloha::{AlohaAction, AlohaObservation, AlohaPolicy};
+use libero_policies::{CameraImage, PolicyError};
 use libero_schema::tables;
 use libero_sim::SimError;
 use libero_sim::aloha::{AlohaBundle, AlohaEnv, AlohaTask, MAX_REWARD, ScriptRecorder};
+use libero_sim::render::SceneRenderer;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// A rollout worker's ALOHA-sim env for one task, and the recorder of the scripted control
-/// (made when a policy first asks for it).
+/// A rollout worker's ALOHA-sim env for one task, the recorder of the scripted control and the
+/// renderer of the `top` camera (each made when a policy first asks for it).
 pub struct AlohaWorker {
     pub task: AlohaTask,
     env: AlohaEnv,
     recorder: Option<ScriptRecorder>,
+    renderer: Option<SceneRenderer>,
 }
 
 impl AlohaWorker {
     pub fn new(bundle: &AlohaBundle, task: AlohaTask) -> Result<Self, SimError> {
-        Ok(AlohaWorker { task, env: AlohaEnv::new(bundle, task)?, recorder: None })
+        Ok(AlohaWorker { task, env: AlohaEnv::new(bundle, task)?, recorder: None, renderer: None })
+    }
+
+    /// `obs["pixels"]["top"]` of the current state (480 × 640, upright), as a policy sees it.
+    fn render_top(&mut self) -> Result<CameraImage, SimError> {
+        if self.renderer.is_none() {
+            self.renderer = Some(self.env.renderer(crate::policy_cameras::worker_gl()?)?);
+        }
+        let frame = self.env.render_top(self.renderer.as_mut().expect("made above"))?;
+        Ok(CameraImage { width: frame.width, height: frame.height, rgb: frame.rgb })
     }
 }
 
@@ -112,8 +123,23 @@ pub fn run_aloha_episode(
     // the joints after step t are what the policy sees before step t + 1: read them once a step
     let mut agent_pos = worker.env.agent_pos();
     for p in 0..protocol.max_steps {
-        // no policy here renders the `top` camera yet (openpi's ALOHA client will)
-        let obs = AlohaObservation { policy_step: p, agent_pos, top: None, script: script.clone() };
+        let mut render_ms = 0.0;
+        let top = if policy.wants_top_camera() {
+            let t0 = Instant::now();
+            let top = worker.render_top();
+            render_ms = t0.elapsed().as_secs_f32() * 1e3;
+            summary.render_s += render_ms as f64 / 1e3;
+            match top {
+                Ok(top) => Some(top),
+                Err(e) => {
+                    summary.error = Some(EpisodeError::from_sim(&e));
+                    break;
+                }
+            }
+        } else {
+            None
+        };
+        let obs = AlohaObservation { policy_step: p, agent_pos, top, script: script.clone() };
         let t0 = Instant::now();
         let action: Result<AlohaAction, PolicyError> = policy.act(&obs);
         let policy_ms = t0.elapsed().as_secs_f32() * 1e3;
@@ -138,7 +164,8 @@ pub fn run_aloha_episode(
         };
         let goal = reward == MAX_REWARD;
         agent_pos = worker.env.agent_pos();
-        steps.push(p as i32, &action, &agent_pos, &worker.env.qpos()[16..], goal, reward, sim_ms, policy_ms);
+        let timing = StepTiming { sim_ms, policy_ms, render_ms };
+        steps.push(p as i32, &action, &agent_pos, &worker.env.qpos()[16..], goal, reward, timing);
         summary.n_policy_steps = p + 1;
         summary.final_goal = goal;
         summary.goal_changes.record(p, goal);
@@ -166,6 +193,14 @@ struct AlohaStepsBuilder {
     reward: Vec<i32>,
     sim_ms: Vec<f32>,
     policy_ms: Vec<f32>,
+    render_ms: Vec<f32>,
+}
+
+/// Where one step's time went (ms): the env, the policy, rendering its camera.
+struct StepTiming {
+    sim_ms: f32,
+    policy_ms: f32,
+    render_ms: f32,
 }
 
 impl AlohaStepsBuilder {
@@ -182,6 +217,7 @@ impl AlohaStepsBuilder {
             reward: vec![],
             sim_ms: vec![],
             policy_ms: vec![],
+            render_ms: vec![],
         }
     }
 
@@ -195,8 +231,7 @@ impl AlohaStepsBuilder {
         objects: &[f64],
         goal: bool,
         reward: u8,
-        sim_ms: f32,
-        policy_ms: f32,
+        timing: StepTiming,
     ) {
         self.step.push(step);
         self.action.extend_from_slice(action);
@@ -207,8 +242,9 @@ impl AlohaStepsBuilder {
         }
         self.goal.push(goal);
         self.reward.push(reward as i32);
-        self.sim_ms.push(sim_ms);
-        self.policy_ms.push(policy_ms);
+        self.sim_ms.push(timing.sim_ms);
+        self.policy_ms.push(timing.policy_ms);
+        self.render_ms.push(timing.render_ms);
     }
 
     fn finish(self) -> Result<RecordBatch, ArrowError> {
@@ -225,8 +261,8 @@ impl AlohaStepsBuilder {
             Arc::new(BooleanArray::from(self.goal)),
             Arc::new(Int32Array::from(self.reward)),
         ]);
-        // nothing is rendered for a policy yet, and no ALOHA policy reports model timings
-        columns.extend(timing_columns(self.sim_ms, self.policy_ms, vec![0.0; n], &vec![None; n]));
+        // no ALOHA policy reports model timings (a forward's split) yet
+        columns.extend(timing_columns(self.sim_ms, self.policy_ms, self.render_ms, &vec![None; n]));
         RecordBatch::try_new(tables::aloha_steps(), columns)
     }
 }

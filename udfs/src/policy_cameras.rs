@@ -22,6 +22,13 @@ thread_local! {
     static GL: std::cell::OnceCell<Result<Rc<GlContext>, String>> = const { std::cell::OnceCell::new() };
 }
 
+/// The rollout worker thread's GL context (made on first use, shared by LIBERO's and ALOHA-sim's
+/// policy cameras).
+pub fn worker_gl() -> Result<Rc<GlContext>, SimError> {
+    GL.with(|cell| cell.get_or_init(|| GlContext::new().map(Rc::new).map_err(|e| e.to_string())).clone())
+        .map_err(SimError::Other)
+}
+
 /// A renderer for one episode's env, reading both cameras on request.
 pub struct PolicyCameras {
     renderer: SceneRenderer,
@@ -31,8 +38,7 @@ pub struct PolicyCameras {
 impl PolicyCameras {
     /// Set up rendering of `env`'s scene at `size`×`size` (uploads its meshes and textures once).
     pub fn new(env: &mut LiberoEnv, size: u32) -> Result<Self, SimError> {
-        let gl = GL.with(|cell| cell.get_or_init(|| GlContext::new().map(Rc::new).map_err(|e| e.to_string())).clone());
-        let gl = gl.map_err(SimError::Other)?;
+        let gl = worker_gl()?;
         let options =
             RenderOptions { look: Look::Mujoco323, quality: Quality::Reference, max_width: size, max_height: size };
         let renderer = env.renderer(gl, options)?;

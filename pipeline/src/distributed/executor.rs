@@ -115,7 +115,7 @@ impl ExecutorRuns {
             .collect::<Result<_>>()?;
         check_same_build(&manifest, &self.bundles, &tasks)?;
         let policy: PolicySpec = manifest.policy.parse().map_err(anyhow::Error::msg)?;
-        let identity = policy.resolve_identity()?;
+        let identity = policy.resolve_identity(libero_schema::Benchmark::Libero)?; // ALOHA-sim runs are local only
         if identity != manifest.policy_identity {
             anyhow::bail!(
                 "the policy {} here is not the run's: its identity here is {identity}, the run's manifest says {}. Give every executor the same checkpoint (or server) as the client.",

@@ -2,7 +2,8 @@
 //! crate computes itself, loaded from their released files with no Python at run time.
 //!
 //! - [`torchscript`]: any policy exported with `torch.jit.save` and a JSON manifest of its
-//!   conventions (the route for a model we have not ported).
+//!   conventions (the route for a model we have not ported); [`torchscript_aloha`], the same for
+//!   ALOHA-sim's 14-D joint actions (the manifest says `"benchmark": "aloha_sim"`).
 //! - [`openvla`]: OpenVLA's Prismatic architecture from a Hugging Face checkpoint directory (vision
 //!   towers, projector, Llama-2, token decoding), and [`openvla::oft`], OpenVLA-OFT on the same
 //!   backbone (two images, proprio token, one bidirectional forward, L1 head's 8 × 7 chunk).
@@ -20,6 +21,7 @@ pub mod openvla;
 pub mod quant;
 pub mod torch_save;
 pub mod torchscript;
+pub mod torchscript_aloha;
 
 use crate::placement::ModelDevice;
 use sha2::{Digest, Sha256};

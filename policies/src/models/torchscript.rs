@@ -26,6 +26,8 @@
 //!   `dataset_statistics` is given (un-normalised with `unnorm_key`, OpenVLA's q01/q99 with the
 //!   mask), else already in env units. `gripper`: `openvla` ([0, 1] → sign → inverted) or `as_is`.
 //! - `replan_steps` of each chunk are executed before the module runs again ([`ActionChunker`]).
+//! - `benchmark`: `libero` (the default). A module for ALOHA-sim says `aloha_sim` and has its
+//!   own manifest form ([`super::torchscript_aloha`]).
 
 use crate::batching::BatchModel;
 use crate::chunking::ActionChunker;
@@ -74,6 +76,14 @@ impl TorchScriptManifest {
     pub fn parse(text: &str, source: &Path) -> Result<Self, PolicyError> {
         let bad = |what: String| err(format!("{}: {what}", source.display()));
         let v: Value = serde_json::from_str(text).map_err(|e| bad(format!("not JSON: {e}")))?;
+        match v.get("benchmark").and_then(Value::as_str) {
+            None | Some("libero") => {}
+            Some(other) => {
+                return Err(bad(format!(
+                    "the module declares \"benchmark\": {other:?}; this manifest form is LIBERO's (see models::torchscript_aloha for ALOHA-sim's)"
+                )));
+            }
+        }
         let uint = |key: &str, default: Option<u64>| -> Result<u64, PolicyError> {
             match v.get(key) {
                 Some(x) => {
@@ -162,6 +172,30 @@ impl TorchScriptManifest {
     }
 }
 
+/// The text of `model`'s manifest (`model.pt` → `model.json`) and its path.
+pub(crate) fn read_manifest(model: &Path) -> Result<(PathBuf, String), PolicyError> {
+    let path = TorchScriptManifest::path_for(model);
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        err(format!(
+            "{}: {e}; a TorchScript policy needs its manifest beside it (see policies::torchscript)",
+            path.display()
+        ))
+    })?;
+    Ok((path, text))
+}
+
+/// `file` loaded by libtorch on the GPU when there is one (in eval mode), the device, and the
+/// file's sha256 (the identity's).
+pub(crate) fn load_module(file: &Path) -> Result<(CModule, Device, String), PolicyError> {
+    let bytes = std::fs::read(file).map_err(|e| err(format!("{}: {e}", file.display())))?;
+    let sha256 = format!("{:x}", Sha256::digest(&bytes));
+    let device = Device::cuda_if_available();
+    let mut module = CModule::load_on_device(file, device)
+        .map_err(|e| err(format!("{} is not a TorchScript module libtorch 2.11 can load: {e}", file.display())))?;
+    module.set_eval();
+    Ok((module, device, sha256))
+}
+
 /// A loaded TorchScript module and its manifest: runs batches of observations.
 pub struct TorchScriptModel {
     module: CModule,
@@ -174,20 +208,9 @@ pub struct TorchScriptModel {
 impl TorchScriptModel {
     /// Load `file` and its manifest, on the GPU when there is one.
     pub fn load(file: &Path) -> Result<Self, PolicyError> {
-        let manifest_path = TorchScriptManifest::path_for(file);
-        let text = std::fs::read_to_string(&manifest_path).map_err(|e| {
-            err(format!(
-                "{}: {e}; a TorchScript policy needs its manifest beside it (see policies::torchscript)",
-                manifest_path.display()
-            ))
-        })?;
+        let (manifest_path, text) = read_manifest(file)?;
         let manifest = TorchScriptManifest::parse(&text, &manifest_path)?;
-        let bytes = std::fs::read(file).map_err(|e| err(format!("{}: {e}", file.display())))?;
-        let sha256 = format!("{:x}", Sha256::digest(&bytes));
-        let device = Device::cuda_if_available();
-        let mut module = CModule::load_on_device(file, device)
-            .map_err(|e| err(format!("{} is not a TorchScript module libtorch 2.11 can load: {e}", file.display())))?;
-        module.set_eval();
+        let (module, device, sha256) = load_module(file)?;
         Ok(TorchScriptModel { module, manifest, device, file: file.to_path_buf(), sha256 })
     }
 

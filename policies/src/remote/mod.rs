@@ -8,6 +8,9 @@
 //!   observation dict per request;
 //! - [`openpi`]: [`OpenpiPolicy`], the [`crate::Policy`] of openpi's LIBERO example (request
 //!   keys, state layout, action chunks executed `replan_steps` at a time);
+//! - [`openpi_aloha`]: [`OpenpiAlohaPolicy`], the [`crate::aloha::AlohaPolicy`] of openpi's
+//!   ALOHA-sim example (`state` and `images/cam_high` padded to 224 channels first, chunks of 50
+//!   executed 10 at a time), on the same connection code ([`openpi::OpenpiServer`]);
 //! - [`vla_eval`]: [`VlaEvalPolicy`], vla-eval's protocol (HELLO with the server's observation
 //!   params, episode start/end, string-keyed arrays, PNG images, ERROR frames) and what its LIBERO
 //!   benchmark sends and executes (one observation per step; the server keeps the chunk);
@@ -49,11 +52,13 @@
 pub mod client;
 pub mod msgpack_numpy;
 pub mod openpi;
+pub mod openpi_aloha;
 pub mod starvla;
 pub mod vla_eval;
 
 pub use client::{OpenpiConnection, RemoteError, WsConnection};
 pub use msgpack_numpy::NdArray;
-pub use openpi::{OpenpiConfig, OpenpiImages, OpenpiPolicy, RgbImage};
+pub use openpi::{OpenpiConfig, OpenpiImages, OpenpiPolicy, OpenpiServer, RgbImage};
+pub use openpi_aloha::OpenpiAlohaPolicy;
 pub use starvla::{Generation, StarVlaConfig, StarVlaPolicy};
 pub use vla_eval::{ObservationParams, VlaEvalConfig, VlaEvalPolicy};

@@ -142,8 +142,9 @@ pub fn libero_request(obs: &Observation, prompt: &str, images: Option<&OpenpiIma
     Value::Map(map)
 }
 
-/// The action chunk of a reply: `reply["actions"]`, a float (N, 7) array with N ≥ 1.
-pub fn actions_of(reply: &Value) -> Result<Vec<Action>, String> {
+/// The action chunk of a reply: `reply["actions"]`, a float (N, D) array with N ≥ 1, D the
+/// benchmark's action size (7 for LIBERO, 14 for ALOHA-sim).
+pub fn actions_of<const D: usize>(reply: &Value) -> Result<Vec<[f32; D]>, String> {
     let map = reply.as_map().ok_or("the reply is not a map")?;
     let keys = || map.iter().map(|(k, _)| msgpack_numpy::to_json(k).to_string()).collect::<Vec<_>>().join(", ");
     let v = msgpack_numpy::get(map, KEY_ACTIONS.as_bytes())
@@ -153,29 +154,26 @@ pub fn actions_of(reply: &Value) -> Result<Vec<Action>, String> {
         return Err(format!("\"actions\" has dtype {:?}, expected float", a.dtype));
     }
     match a.shape[..] {
-        [n, 7] if n >= 1 => {}
-        _ => return Err(format!("\"actions\" has shape {:?}, expected (N, 7) with N >= 1", a.shape)),
+        [n, d] if n >= 1 && d == D => {}
+        _ => return Err(format!("\"actions\" has shape {:?}, expected (N, {D}) with N >= 1", a.shape)),
     }
     let values = a.to_f64().map_err(|e| e.0)?;
-    Ok(values.chunks_exact(7).map(|c| std::array::from_fn(|j| c[j] as f32)).collect())
+    Ok(values.chunks_exact(D).map(|c| std::array::from_fn(|j| c[j] as f32)).collect())
 }
 
-/// A policy served by openpi's websocket policy server. One instance, one connection (each
-/// rollout worker makes its own); the connection persists across episodes, as in openpi's
-/// example, and is reopened after a failure at the next query (the server must send the same
-/// metadata again, or the query fails).
+/// The connection side of an openpi client, whatever the benchmark: one connection (reopened
+/// after a failure at the next query, when the server sends the same metadata again) and the
+/// metadata of the first one. The request layout and the chunking are the policies' business
+/// ([`OpenpiPolicy`] for LIBERO, [`super::openpi_aloha::OpenpiAlohaPolicy`] for ALOHA-sim).
 #[derive(Debug)]
-pub struct OpenpiPolicy {
+pub struct OpenpiServer {
     config: OpenpiConfig,
     conn: Option<OpenpiConnection>,
     /// The metadata of the first connection, as JSON (for the identity, and to check reconnects).
     metadata: serde_json::Value,
-    prompt: String,
-    /// The queued actions of the last chunk (executes `replan_steps` of each).
-    chunker: ActionChunker,
 }
 
-impl OpenpiPolicy {
+impl OpenpiServer {
     /// Connects and reads the server's metadata (within `config.connect_timeout`).
     pub fn connect(config: OpenpiConfig) -> Result<Self, PolicyError> {
         if config.replan_steps == 0 {
@@ -183,13 +181,7 @@ impl OpenpiPolicy {
         }
         let conn = open(&config)?;
         let metadata = msgpack_numpy::to_json(conn.metadata());
-        Ok(OpenpiPolicy {
-            conn: Some(conn),
-            metadata,
-            prompt: String::new(),
-            chunker: ActionChunker::new(config.replan_steps),
-            config,
-        })
+        Ok(OpenpiServer { conn: Some(conn), metadata, config })
     }
 
     pub fn config(&self) -> &OpenpiConfig {
@@ -199,6 +191,84 @@ impl OpenpiPolicy {
     /// The server's metadata message (sent before anything else on the connection), as JSON.
     pub fn metadata(&self) -> &serde_json::Value {
         &self.metadata
+    }
+
+    /// Sends one observation dict and returns the action chunk (N, D); (re)connects first if
+    /// needed. A chunk shorter than `replan_steps` is an error, as openpi's clients assert (the
+    /// LIBERO example) or fail indexing it (`ActionChunkBroker`).
+    pub fn query<const D: usize>(&mut self, request: &Value) -> Result<Vec<[f32; D]>, PolicyError> {
+        if !self.conn.as_ref().is_some_and(OpenpiConnection::is_open) {
+            self.conn = None;
+            let conn = open(&self.config)?;
+            let metadata = msgpack_numpy::to_json(conn.metadata());
+            if metadata != self.metadata {
+                return Err(error(format!(
+                    "reconnected to {}, but the server's metadata changed (was {}, now {metadata}): not the policy this run started with",
+                    self.config.url, self.metadata
+                )));
+            }
+            self.conn = Some(conn);
+        }
+        let conn = self.conn.as_mut().expect("connected above");
+        let reply = conn.infer(request).map_err(remote_error)?;
+        let chunk =
+            actions_of::<D>(&reply).map_err(|e| error(format!("malformed reply from {}: {e}", self.config.url)))?;
+        if chunk.len() < self.config.replan_steps {
+            return Err(error(format!(
+                "the server predicted {} actions, fewer than replan_steps = {} (openpi's example asserts the same)",
+                chunk.len(),
+                self.config.replan_steps
+            )));
+        }
+        Ok(chunk)
+    }
+
+    /// The identity's common part: the server, its metadata, the chunking and the timeouts.
+    pub fn identity(&self, protocol: &str, request: serde_json::Value) -> serde_json::Value {
+        let predicted = self.metadata.get("action_horizon").cloned().unwrap_or(serde_json::Value::Null);
+        serde_json::json!({
+            "kind": "remote",
+            "name": NAME,
+            "url": self.config.url,
+            "protocol": protocol,
+            "server_metadata": self.metadata,
+            "request": request,
+            "chunking": { "predicted": predicted, "executed": self.config.replan_steps },
+            "replan_steps": self.config.replan_steps,
+            "timeouts_s": {
+                "connect": self.config.connect_timeout.as_secs_f64(),
+                "request": self.config.request_timeout.as_secs_f64(),
+            },
+            "determinism": "as the server's: a sampling policy draws its noise server-side",
+        })
+    }
+}
+
+/// A policy served by openpi's websocket policy server. One instance, one connection (each
+/// rollout worker makes its own); the connection persists across episodes, as in openpi's
+/// example, and is reopened after a failure at the next query ([`OpenpiServer`]).
+#[derive(Debug)]
+pub struct OpenpiPolicy {
+    server: OpenpiServer,
+    prompt: String,
+    /// The queued actions of the last chunk (executes `replan_steps` of each).
+    chunker: ActionChunker,
+}
+
+impl OpenpiPolicy {
+    /// Connects and reads the server's metadata (within `config.connect_timeout`).
+    pub fn connect(config: OpenpiConfig) -> Result<Self, PolicyError> {
+        let chunker = ActionChunker::new(config.replan_steps);
+        Ok(OpenpiPolicy { server: OpenpiServer::connect(config)?, prompt: String::new(), chunker })
+    }
+
+    pub fn config(&self) -> &OpenpiConfig {
+        self.server.config()
+    }
+
+    /// The server's metadata message (sent before anything else on the connection), as JSON.
+    pub fn metadata(&self) -> &serde_json::Value {
+        self.server.metadata()
     }
 
     /// Length of the last chunk the server predicted (None before the first query).
@@ -221,14 +291,9 @@ impl OpenpiPolicy {
     /// its metadata states one (openpi's `pi05_libero` metadata does not; then null: the length
     /// is only known from the replies, see [`Self::last_predicted`]).
     pub fn identity(&self) -> serde_json::Value {
-        let predicted = self.metadata.get("action_horizon").cloned().unwrap_or(serde_json::Value::Null);
-        serde_json::json!({
-            "kind": "remote",
-            "name": NAME,
-            "url": self.config.url,
-            "protocol": "openpi websocket + msgpack-numpy: server metadata first, one observation dict per request, reply {\"actions\": (N, 7)}",
-            "server_metadata": self.metadata,
-            "request": {
+        self.server.identity(
+            "openpi websocket + msgpack-numpy: server metadata first, one observation dict per request, reply {\"actions\": (N, 7)}",
+            serde_json::json!({
                 "keys": [KEY_IMAGE, KEY_WRIST_IMAGE, KEY_STATE, KEY_PROMPT],
                 "state": "float64 (8,): eef_pos (3), quat2axisangle(robot0_eef_quat = hand body xquat, as given) (3), gripper_qpos (2)",
                 "prompt": "the task's language instruction",
@@ -237,51 +302,18 @@ impl OpenpiPolicy {
                     "render": format!("{LIBERO_RENDER_SIZE}x{LIBERO_RENDER_SIZE}, look mujoco-3.2.3"),
                     "preprocessing": crate::preprocess::ImagePipeline::OPENPI.describe(),
                 },
-            },
-            "chunking": { "predicted": predicted, "executed": self.config.replan_steps },
-            "replan_steps": self.config.replan_steps,
-            "timeouts_s": {
-                "connect": self.config.connect_timeout.as_secs_f64(),
-                "request": self.config.request_timeout.as_secs_f64(),
-            },
-            "determinism": "as the server's: a sampling policy draws its noise server-side",
-        })
+            }),
+        )
     }
 
     /// The next action, sending `images` (already preprocessed) with the request when one is due.
     pub fn act_with_images(&mut self, obs: &Observation, images: Option<&OpenpiImages>) -> Result<Action, PolicyError> {
         if self.chunker.needs_query() {
             let request = libero_request(obs, &self.prompt, images);
-            let chunk = self.query(&request)?;
-            if chunk.len() < self.config.replan_steps {
-                return Err(error(format!(
-                    "the server predicted {} actions, fewer than replan_steps = {} (openpi's example asserts the same)",
-                    chunk.len(),
-                    self.config.replan_steps
-                )));
-            }
+            let chunk = self.server.query::<7>(&request)?;
             self.chunker.push_chunk(chunk).map_err(error)?;
         }
         Ok(self.chunker.next_action().expect("a chunk of at least replan_steps >= 1 actions was queued"))
-    }
-
-    /// Sends one observation dict and returns the action chunk; (re)connects first if needed.
-    fn query(&mut self, request: &Value) -> Result<Vec<Action>, PolicyError> {
-        if !self.conn.as_ref().is_some_and(OpenpiConnection::is_open) {
-            self.conn = None;
-            let conn = open(&self.config)?;
-            let metadata = msgpack_numpy::to_json(conn.metadata());
-            if metadata != self.metadata {
-                return Err(error(format!(
-                    "reconnected to {}, but the server's metadata changed (was {}, now {metadata}): not the policy this run started with",
-                    self.config.url, self.metadata
-                )));
-            }
-            self.conn = Some(conn);
-        }
-        let conn = self.conn.as_mut().expect("connected above");
-        let reply = conn.infer(request).map_err(remote_error)?;
-        actions_of(&reply).map_err(|e| error(format!("malformed reply from {}: {e}", self.config.url)))
     }
 }
 
@@ -310,7 +342,7 @@ fn open(config: &OpenpiConfig) -> Result<OpenpiConnection, PolicyError> {
         .map_err(remote_error)
 }
 
-fn error(detail: String) -> PolicyError {
+pub(super) fn error(detail: String) -> PolicyError {
     PolicyError { policy: NAME.into(), detail }
 }
 
@@ -367,14 +399,14 @@ mod tests {
     fn actions_are_read_from_a_float_n_by_7_array_only() {
         let reply = |a: NdArray| Value::Map(vec![(Value::from("actions"), a.to_value())]);
         let vals: Vec<f32> = (0..14).map(|i| i as f32).collect();
-        let chunk = actions_of(&reply(NdArray::from_f32(&[2, 7], &vals))).unwrap();
+        let chunk = actions_of::<7>(&reply(NdArray::from_f32(&[2, 7], &vals))).unwrap();
         assert_eq!(chunk, [[0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0], [7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0]]);
         let f64s: Vec<f64> = (0..7).map(|i| i as f64 / 2.0).collect();
-        assert_eq!(actions_of(&reply(NdArray::from_f64(&[1, 7], &f64s))).unwrap()[0][6], 3.0);
-        assert!(actions_of(&reply(NdArray::from_f32(&[14], &vals))).unwrap_err().contains("shape"));
-        assert!(actions_of(&reply(NdArray::from_f32(&[0, 7], &[]))).unwrap_err().contains("shape"));
-        assert!(actions_of(&reply(NdArray::from_u8(&[1, 7], vec![0; 7]))).unwrap_err().contains("dtype"));
+        assert_eq!(actions_of::<7>(&reply(NdArray::from_f64(&[1, 7], &f64s))).unwrap()[0][6], 3.0);
+        assert!(actions_of::<7>(&reply(NdArray::from_f32(&[14], &vals))).unwrap_err().contains("shape"));
+        assert!(actions_of::<7>(&reply(NdArray::from_f32(&[0, 7], &[]))).unwrap_err().contains("shape"));
+        assert!(actions_of::<7>(&reply(NdArray::from_u8(&[1, 7], vec![0; 7]))).unwrap_err().contains("dtype"));
         let other = Value::Map(vec![(Value::from("action"), Value::from(1))]);
-        assert!(actions_of(&other).unwrap_err().contains("no \"actions\""));
+        assert!(actions_of::<7>(&other).unwrap_err().contains("no \"actions\""));
     }
 }

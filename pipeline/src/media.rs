@@ -45,7 +45,29 @@ impl Default for PanelArgs {
 impl PanelArgs {
     /// [`CAMERAS`] side by side under a 4-line caption.
     pub fn layout(&self) -> PanelLayout {
-        PanelLayout { cameras: CAMERAS.map(String::from).to_vec(), size: self.size, caption_lines: 4 }
+        PanelLayout {
+            cameras: CAMERAS.map(String::from).to_vec(),
+            camera_width: self.size,
+            camera_height: self.size,
+            caption_lines: 4,
+        }
+    }
+
+    /// ALOHA-sim's panel: the `top` camera at the 640 × 480 a policy sees, under a 4-line caption.
+    pub fn aloha_layout(&self) -> PanelLayout {
+        use libero_sim::aloha::env::{TOP_CAMERA, TOP_HEIGHT, TOP_WIDTH};
+        PanelLayout {
+            cameras: vec![TOP_CAMERA.to_string()],
+            camera_width: TOP_WIDTH,
+            camera_height: TOP_HEIGHT,
+            caption_lines: 4,
+        }
+    }
+
+    /// Render options for ALOHA-sim's scene: its own look (MuJoCo 3.3.7's, what its policies
+    /// see), the quality asked for, a buffer that holds `layout`.
+    pub fn aloha_options(&self, layout: &PanelLayout) -> RenderOptions {
+        RenderOptions { look: Look::Mujoco337, ..self.options(layout) }
     }
 
     /// Render options whose offscreen buffer holds `layout`.
@@ -59,11 +81,12 @@ impl PanelArgs {
     }
 }
 
-/// Cameras side by side, each `size`×`size`, under a caption of `caption_lines` lines.
+/// Cameras side by side, each `camera_width`×`camera_height`, under a caption of `caption_lines` lines.
 #[derive(Debug, Clone)]
 pub struct PanelLayout {
     pub cameras: Vec<String>,
-    pub size: u32,
+    pub camera_width: u32,
+    pub camera_height: u32,
     pub caption_lines: u32,
 }
 
@@ -73,10 +96,17 @@ impl PanelLayout {
         (self.caption_lines * LINE_HEIGHT + 8).next_multiple_of(2)
     }
     pub fn width(&self) -> u32 {
-        self.size * self.cameras.len() as u32
+        self.camera_width * self.cameras.len() as u32
     }
     pub fn height(&self) -> u32 {
-        self.size + self.caption_height()
+        self.camera_height + self.caption_height()
+    }
+    /// Where camera `i` is drawn and where the caption goes, in the buffer.
+    fn camera_rect(&self, i: usize) -> Rect {
+        Rect::new(i as u32 * self.camera_width, 0, self.camera_width, self.camera_height)
+    }
+    fn caption_rect(&self) -> Rect {
+        Rect::new(0, self.camera_height, self.width(), self.caption_height())
     }
     /// Wrap `text` to the panel width; at most `caption_lines` lines (the last one cut with "...": the font is ASCII).
     pub fn wrap(&self, text: &str) -> String {
@@ -93,10 +123,28 @@ pub fn render_panel(
 ) -> Result<Frame> {
     let ids = layout.cameras.iter().map(|c| renderer.camera_id(c)).collect::<Result<Vec<_>, _>>()?;
     for (i, id) in ids.into_iter().enumerate() {
-        env.draw_camera(renderer, id, Rect::new(i as u32 * layout.size, 0, layout.size, layout.size))?;
+        env.draw_camera(renderer, id, layout.camera_rect(i))?;
     }
-    let caption_rect = Rect::new(0, layout.size, layout.width(), layout.caption_height());
-    renderer.draw_text(caption_rect, &layout.wrap(caption), CAPTION_BACKGROUND)?;
+    finish_panel(renderer, layout, caption)
+}
+
+/// [`render_panel`] for an ALOHA-sim env (its `top` camera, [`PanelArgs::aloha_layout`]).
+pub fn render_aloha_panel(
+    env: &mut libero_sim::aloha::AlohaEnv,
+    renderer: &mut SceneRenderer,
+    layout: &PanelLayout,
+    caption: &str,
+) -> Result<Frame> {
+    let ids = layout.cameras.iter().map(|c| renderer.camera_id(c)).collect::<Result<Vec<_>, _>>()?;
+    for (i, id) in ids.into_iter().enumerate() {
+        env.draw_camera(renderer, id, layout.camera_rect(i))?;
+    }
+    finish_panel(renderer, layout, caption)
+}
+
+/// The caption over the drawn cameras, and the whole panel read back upright.
+fn finish_panel(renderer: &mut SceneRenderer, layout: &PanelLayout, caption: &str) -> Result<Frame> {
+    renderer.draw_text(layout.caption_rect(), &layout.wrap(caption), CAPTION_BACKGROUND)?;
     Ok(renderer.read(Rect::new(0, 0, layout.width(), layout.height()))?.upright())
 }
 

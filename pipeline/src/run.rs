@@ -159,7 +159,11 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         },
         policy: args.policy.name(),
         policy_identity: args.policy.resolve_identity(benchmark)?,
-        num_steps_wait: args.wait_steps as i32,
+        // ALOHA-sim's loops (lerobot's, openpi's) have no settling steps
+        num_steps_wait: match benchmark {
+            Benchmark::Libero => args.wait_steps as i32,
+            Benchmark::AlohaSim => 0,
+        },
         max_steps: match benchmark {
             Benchmark::Libero => protocol.max_steps.iter().map(|(s, n)| (s.name(), *n as i32)).collect(),
             Benchmark::AlohaSim => BTreeMap::from([(ALOHA_SUITE.to_string(), aloha_max_steps as i32)]),

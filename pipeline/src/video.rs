@@ -8,8 +8,13 @@
 //! ones (to 1e-9 m), else the command fails and names the first step that differs. The video shows agentview | eye-in-hand
 //! under a caption (episode, step, goal so far, final outcome and failure mode, instruction) and
 //! ends on a card with the outcome.
+//!
+//! An ALOHA-sim episode (suite `aloha_sim`) is replayed the same way in its own env: reset from
+//! its seed, driven with the stored 14-D actions; the reward and `agent_pos` after every step
+//! must equal the stored ones (the joints to 1e-9 rad). The video shows the `top` camera at the
+//! 640 × 480 a policy sees, under the same caption (the reward so far in place of the goal).
 
-use crate::media::{Mp4Writer, PanelArgs, render_card, render_panel};
+use crate::media::{Mp4Writer, PanelArgs, render_aloha_panel, render_card, render_panel};
 use crate::results::write_csv;
 use crate::session::{self, RunScoring, Scoring};
 use anyhow::{Context, Result, bail};
@@ -18,6 +23,8 @@ use arrow::array::{Array, AsArray};
 use arrow::datatypes::{DataType, Field, Schema};
 use arrow::datatypes::{Float32Type, Float64Type, Int32Type, Int64Type};
 use arrow::record_batch::RecordBatch;
+use libero_schema::Benchmark;
+use libero_sim::aloha::{AlohaBundle, AlohaEnv, AlohaTask};
 use libero_sim::bundle::BundleSet;
 use libero_sim::env::LiberoEnv;
 use libero_sim::gl::GlContext;
@@ -67,9 +74,10 @@ pub struct RenderArgs {
     /// Frames per second of the video.
     #[arg(long, default_value_t = 10)]
     fps: u32,
-    /// Render every N-th env step (the env runs at 20 Hz: 2 at 10 fps is real time).
-    #[arg(long, default_value_t = 2)]
-    every: u32,
+    /// Render every N-th env step. Default: real time at --fps 10, i.e. 2 for LIBERO (20 Hz) and
+    /// 5 for ALOHA-sim (50 Hz).
+    #[arg(long)]
+    every: Option<u32>,
     #[command(flatten)]
     panel: PanelArgs,
 }
@@ -77,8 +85,6 @@ pub struct RenderArgs {
 /// One stored episode: what the replay needs and what the final card says.
 struct StoredEpisode {
     key: String,
-    /// What the episode's spec row perturbed (`episodes.perturbation_params`), re-applied.
-    perturbation: EpisodePerturbation,
     suite: String,
     task_id: u32,
     init_state_id: usize,
@@ -89,19 +95,65 @@ struct StoredEpisode {
     failure_mode: Option<String>,
     n_policy_steps: i32,
     error: Option<String>,
-    actions: Vec<[f32; 7]>,
     goals: Vec<bool>,
-    /// Stored end-effector position after each step: the replay must reproduce it exactly.
-    eef_pos: Vec<[f64; 3]>,
+    steps: StoredSteps,
+}
+
+/// A stored episode's steps as its benchmark's replay needs them.
+enum StoredSteps {
+    Libero {
+        /// What the episode's spec row perturbed (`episodes.perturbation_params`), re-applied.
+        perturbation: EpisodePerturbation,
+        actions: Vec<[f32; 7]>,
+        /// Stored end-effector position after each step: the replay must reproduce it exactly.
+        eef_pos: Vec<[f64; 3]>,
+    },
+    Aloha {
+        actions: Vec<[f32; 14]>,
+        /// Stored joints after each step and the reward: the replay must reproduce both.
+        agent_pos: Vec<[f64; 14]>,
+        reward: Vec<i32>,
+    },
+}
+
+impl StoredEpisode {
+    fn len(&self) -> usize {
+        self.goals.len()
+    }
+}
+
+/// The bundles replays need, opened when an episode of their benchmark first asks.
+struct ReplayBundles {
+    libero_dir: PathBuf,
+    libero: Option<BundleSet>,
+    aloha: Option<AlohaBundle>,
+}
+
+impl ReplayBundles {
+    fn new(libero_dir: &Path) -> Self {
+        ReplayBundles { libero_dir: libero_dir.to_path_buf(), libero: None, aloha: None }
+    }
+    fn libero(&mut self) -> Result<&BundleSet> {
+        if self.libero.is_none() {
+            self.libero = Some(BundleSet::open(&self.libero_dir)?);
+        }
+        Ok(self.libero.as_ref().expect("opened above"))
+    }
+    fn aloha(&mut self) -> Result<&AlohaBundle> {
+        if self.aloha.is_none() {
+            self.aloha = Some(AlohaBundle::open(crate::bundles_location::resolve_aloha(None))?);
+        }
+        Ok(self.aloha.as_ref().expect("opened above"))
+    }
 }
 
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
-    let set = BundleSet::open(bundles)?;
+    let mut set = ReplayBundles::new(bundles);
     let episodes = tokio::runtime::Runtime::new()?.block_on(async {
         let (ctx, store) = args.scoring.open_run(&args.run).await?;
         load_episodes(&ctx, store.url().as_str(), &args.episodes).await
     })?;
-    render_all(&set, &episodes, &args.render, &args.out)?;
+    render_all(&mut set, &episodes, &args.render, &args.out)?;
     Ok(())
 }
 
@@ -128,7 +180,7 @@ pub fn run_selected(bundles: &Path, args: SelectedArgs) -> Result<()> {
 
 /// Render the episodes the selection query picks from `run` into `out` (default drawing).
 pub fn render_selection(bundles: &Path, run: &str, scoring: Scoring, out: &Path) -> Result<Vec<RecordBatch>> {
-    let render = RenderArgs { fps: 10, every: 2, panel: PanelArgs::default() };
+    let render = RenderArgs { fps: 10, every: None, panel: PanelArgs::default() };
     render_selection_with(bundles, run, scoring, out, &render)
 }
 
@@ -142,7 +194,7 @@ fn render_selection_with(
     out: &Path,
     render: &RenderArgs,
 ) -> Result<Vec<RecordBatch>> {
-    let set = BundleSet::open(bundles)?;
+    let mut set = ReplayBundles::new(bundles);
     let (selection, episodes, run_config) = tokio::runtime::Runtime::new()?.block_on(async {
         let (ctx, store) = scoring.open_run(run).await?;
         let run_config = store.read_manifest().await?.context("the run has no manifest")?.run_config;
@@ -178,7 +230,7 @@ fn render_selection_with(
     if episodes.is_empty() {
         println!("the selection is empty (no failed episode under this scoring): no video to render");
     }
-    render_all(&set, &episodes, render, out)?;
+    render_all(&mut set, &episodes, render, out)?;
     let index = serde_json::json!({"run": run, "run_config": run_config, "videos": files});
     std::fs::write(out.join("videos.json"), serde_json::to_vec_pretty(&index)?)?;
     Ok(with_files)
@@ -201,7 +253,7 @@ pub fn video_file_name(
     format!("{suite}_task{task_id}_init{init}{tail}.mp4")
 }
 
-fn render_all(set: &BundleSet, episodes: &[StoredEpisode], render: &RenderArgs, out: &Path) -> Result<()> {
+fn render_all(set: &mut ReplayBundles, episodes: &[StoredEpisode], render: &RenderArgs, out: &Path) -> Result<()> {
     if episodes.is_empty() {
         return Ok(());
     }
@@ -209,12 +261,19 @@ fn render_all(set: &BundleSet, episodes: &[StoredEpisode], render: &RenderArgs, 
     let gl = Rc::new(GlContext::new()?);
     for ep in episodes {
         let path = out.join(video_name(ep));
-        let frames = replay_to_video(set, &gl, ep, render, &path)?;
+        let (frames, matched) = match &ep.steps {
+            StoredSteps::Libero { .. } => {
+                (replay_to_video(set.libero()?, &gl, ep, render, &path)?, "goal and end-effector position")
+            }
+            StoredSteps::Aloha { .. } => {
+                (replay_aloha_to_video(set.aloha()?, &gl, ep, render, &path)?, "reward and joints")
+            }
+        };
         println!(
-            "{}  ({} frames, replay matched the stored goal and end-effector position of all {} steps)",
+            "{}  ({} frames, replay matched the stored {matched} of all {} steps)",
             path.display(),
             frames,
-            ep.goals.len()
+            ep.len()
         );
     }
     Ok(())
@@ -237,14 +296,15 @@ fn replay_to_video(
     args: &RenderArgs,
     path: &Path,
 ) -> Result<u64> {
-    if args.every == 0 || args.fps == 0 {
-        bail!("--every and --fps must be at least 1");
-    }
+    let StoredSteps::Libero { perturbation, actions, eef_pos } = &ep.steps else {
+        bail!("{} is not a LIBERO episode", ep.key);
+    };
+    let every = frame_interval(args, 2)?;
     let bundle = set.load(ep.suite.parse().map_err(anyhow::Error::msg)?, ep.task_id)?;
     let mut env = LiberoEnv::new(&bundle)?;
     // The episode's camera pose and robot init pose: the same physics, seen as the policy saw it
     // (sensor noise is on the policy's input only; the video shows the clean frames).
-    env.set_episode_edits(ep.perturbation.env_edits(&bundle.task.problem)?)?;
+    env.set_episode_edits(perturbation.env_edits(&bundle.task.problem)?)?;
     env.reset(ep.init_state_id, ep.seed)?;
     let layout = args.panel.layout();
     let options = args.panel.options(&layout);
@@ -255,14 +315,14 @@ fn replay_to_video(
         format!(
             "{}  step {step}/{}  goal so far: {}\noutcome: {outcome}\n{}",
             ep.key,
-            ep.actions.len(),
+            actions.len(),
             yes_no(goal_seen),
             ep.instruction
         )
     };
     video.push(&render_panel(&mut env, &mut renderer, &layout, &caption(0, false))?)?;
     let mut goal_seen = false;
-    for (i, (action, &stored_goal)) in ep.actions.iter().zip(&ep.goals).enumerate() {
+    for (i, (action, &stored_goal)) in actions.iter().zip(&ep.goals).enumerate() {
         let out = env.step(action.map(f64::from)).with_context(|| format!("replaying step {i} of {}", ep.key))?;
         if out.goal.satisfied != stored_goal {
             bail!(
@@ -274,7 +334,7 @@ fn replay_to_video(
             );
         }
         let replayed = env.observation().eef_pos;
-        let stored = ep.eef_pos[i];
+        let stored = eef_pos[i];
         let gap = replayed.iter().zip(&stored).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
         if gap > 1e-9 {
             bail!(
@@ -284,11 +344,90 @@ fn replay_to_video(
             );
         }
         goal_seen |= out.goal.satisfied;
-        let last = i + 1 == ep.actions.len();
-        if (i + 1) % args.every as usize == 0 || last {
+        let last = i + 1 == actions.len();
+        if (i + 1) % every == 0 || last {
             video.push(&render_panel(&mut env, &mut renderer, &layout, &caption(i + 1, goal_seen))?)?;
         }
     }
+    finish_video(video, &mut renderer, &layout, ep, outcome, args.fps)
+}
+
+/// `--every`, or `real_time` (the env steps per frame at --fps 10); both at least 1.
+fn frame_interval(args: &RenderArgs, real_time: u32) -> Result<usize> {
+    let every = args.every.unwrap_or(real_time);
+    if every == 0 || args.fps == 0 {
+        bail!("--every and --fps must be at least 1");
+    }
+    Ok(every as usize)
+}
+
+/// An ALOHA-sim episode replayed in its env from its seed, the `top` camera under the caption.
+fn replay_aloha_to_video(
+    bundle: &AlohaBundle,
+    gl: &Rc<GlContext>,
+    ep: &StoredEpisode,
+    args: &RenderArgs,
+    path: &Path,
+) -> Result<u64> {
+    let StoredSteps::Aloha { actions, agent_pos, reward } = &ep.steps else {
+        bail!("{} is not an ALOHA-sim episode", ep.key);
+    };
+    let every = frame_interval(args, 5)?;
+    let task = AlohaTask::from_id(ep.task_id as i64)
+        .with_context(|| format!("{}: no ALOHA-sim task {}", ep.key, ep.task_id))?;
+    let seed =
+        u32::try_from(ep.seed).with_context(|| format!("{}: seed {} is outside numpy's range", ep.key, ep.seed))?;
+    let mut env = AlohaEnv::new(bundle, task)?;
+    env.reset(seed)?;
+    let layout = args.panel.aloha_layout();
+    let mut renderer = env.renderer_with(gl.clone(), args.panel.aloha_options(&layout))?;
+    let mut video = Mp4Writer::create(path, layout.width(), layout.height(), args.fps)?;
+    let outcome = outcome_line(ep);
+    let caption = |step: usize, reward: i32, best: i32| {
+        format!(
+            "{}  step {step}/{}  reward {reward} (best {best} of 4)\noutcome: {outcome}\n{}",
+            ep.key,
+            actions.len(),
+            ep.instruction
+        )
+    };
+    video.push(&render_aloha_panel(&mut env, &mut renderer, &layout, &caption(0, 0, 0))?)?;
+    let mut best = 0;
+    for (i, action) in actions.iter().enumerate() {
+        let replayed = env.step(action).with_context(|| format!("replaying step {i} of {}", ep.key))? as i32;
+        if replayed != reward[i] {
+            bail!(
+                "replay of {} is not deterministic: at step {i} the reward is {replayed} but the run stored {}; \
+                 was the run made with another ALOHA-sim bundle or another MuJoCo? (see its manifest)",
+                ep.key,
+                reward[i]
+            );
+        }
+        let gap = env.agent_pos().iter().zip(&agent_pos[i]).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        if gap > 1e-9 {
+            bail!(
+                "replay of {} is not deterministic: at step {i} the joints are {gap:.2e} rad from the stored \
+                 agent_pos; was the run made with another ALOHA-sim bundle or another MuJoCo? (see its manifest)",
+                ep.key
+            );
+        }
+        best = best.max(replayed);
+        if (i + 1) % every == 0 || i + 1 == actions.len() {
+            video.push(&render_aloha_panel(&mut env, &mut renderer, &layout, &caption(i + 1, replayed, best))?)?;
+        }
+    }
+    finish_video(video, &mut renderer, &layout, ep, outcome, args.fps)
+}
+
+/// The outcome card, shown for two seconds, and the file closed.
+fn finish_video(
+    mut video: Mp4Writer,
+    renderer: &mut libero_sim::render::SceneRenderer,
+    layout: &crate::media::PanelLayout,
+    ep: &StoredEpisode,
+    outcome: String,
+    fps: u32,
+) -> Result<u64> {
     let headline = match &ep.error {
         Some(e) => format!("ERROR\n{}", crate::media::wrap(e, 50, 4)),
         None => outcome,
@@ -302,8 +441,8 @@ fn replay_to_video(
     );
     let background =
         if ep.failure_mode.is_none() && ep.error.is_none() { [0.05, 0.3, 0.1] } else { [0.35, 0.05, 0.05] };
-    let card = render_card(&mut renderer, layout.width(), layout.height(), &card, background)?;
-    for _ in 0..2 * args.fps {
+    let card = render_card(renderer, layout.width(), layout.height(), &card, background)?;
+    for _ in 0..2 * fps {
         video.push(&card)?;
     }
     video.finish()
@@ -346,41 +485,44 @@ async fn load_episodes(
             modes.iter().find(|m| m.num_rows() > 0).map(|m| m.column(0).as_string::<i32>().value(0).to_string());
         let success = b.column(5).as_boolean();
         let error = b.column(7).as_string::<i32>();
-        let steps = ctx
-            .sql(&format!("SELECT action, goal, eef_pos FROM steps WHERE episode_key = {quoted} ORDER BY step"))
-            .await?
-            .collect()
-            .await?;
-        let (mut actions, mut goals, mut eef_pos) = (Vec::new(), Vec::new(), Vec::new());
-        for s in &steps {
-            let list = s.column(0).as_fixed_size_list();
-            for r in 0..s.num_rows() {
-                let value = list.value(r);
-                let a: [f32; 7] = value
-                    .as_primitive::<Float32Type>()
-                    .values()
-                    .as_ref()
-                    .try_into()
-                    .context("actions have 7 components")?;
-                actions.push(a);
-                goals.push(s.column(1).as_boolean().value(r));
-                let p = s.column(2).as_fixed_size_list().value(r);
-                eef_pos.push(
-                    p.as_primitive::<Float64Type>().values().as_ref().try_into().context("eef_pos has 3 components")?,
-                );
+        let suite = text(0);
+        let (goals, steps) = match Benchmark::of_suite(&suite) {
+            Benchmark::Libero => {
+                let params = b.column(8).as_string::<i32>();
+                let perturbation = match params.is_null(0) {
+                    true => EpisodePerturbation::default(),
+                    false => EpisodePerturbation::from_canonical(params.value(0))
+                        .map_err(anyhow::Error::msg)
+                        .with_context(|| format!("episode {key}"))?,
+                };
+                let rows = step_rows(ctx, &quoted, "action, goal, eef_pos").await?;
+                let (mut actions, mut goals, mut eef_pos) = (Vec::new(), Vec::new(), Vec::new());
+                for s in &rows {
+                    for r in 0..s.num_rows() {
+                        actions.push(fixed_row::<Float32Type, 7>(s, 0, r).context("actions have 7 components")?);
+                        goals.push(s.column(1).as_boolean().value(r));
+                        eef_pos.push(fixed_row::<Float64Type, 3>(s, 2, r).context("eef_pos has 3 components")?);
+                    }
+                }
+                (goals, StoredSteps::Libero { perturbation, actions, eef_pos })
             }
-        }
-        let params = b.column(8).as_string::<i32>();
-        let perturbation = match params.is_null(0) {
-            true => EpisodePerturbation::default(),
-            false => EpisodePerturbation::from_canonical(params.value(0))
-                .map_err(anyhow::Error::msg)
-                .with_context(|| format!("episode {key}"))?,
+            Benchmark::AlohaSim => {
+                let rows = step_rows(ctx, &quoted, "action, goal, agent_pos, reward").await?;
+                let (mut actions, mut goals, mut agent_pos, mut reward) = (vec![], vec![], vec![], vec![]);
+                for s in &rows {
+                    for r in 0..s.num_rows() {
+                        actions.push(fixed_row::<Float32Type, 14>(s, 0, r).context("actions have 14 components")?);
+                        goals.push(s.column(1).as_boolean().value(r));
+                        agent_pos.push(fixed_row::<Float64Type, 14>(s, 2, r).context("agent_pos has 14 components")?);
+                        reward.push(s.column(3).as_primitive::<Int32Type>().value(r));
+                    }
+                }
+                (goals, StoredSteps::Aloha { actions, agent_pos, reward })
+            }
         };
         out.push(StoredEpisode {
-            perturbation,
             key: key.clone(),
-            suite: text(0),
+            suite,
             task_id: b.column(1).as_primitive::<Int32Type>().value(0) as u32,
             init_state_id: b.column(2).as_primitive::<Int32Type>().value(0) as usize,
             seed: b.column(3).as_primitive::<Int64Type>().value(0) as u64,
@@ -389,10 +531,32 @@ async fn load_episodes(
             failure_mode,
             n_policy_steps: b.column(6).as_primitive::<Int32Type>().value(0),
             error: (!error.is_null(0)).then(|| error.value(0).to_string()),
-            actions,
             goals,
-            eef_pos,
+            steps,
         });
     }
     Ok(out)
+}
+
+/// `columns` of an episode's step rows, in step order.
+async fn step_rows(
+    ctx: &datafusion::prelude::SessionContext,
+    quoted_key: &str,
+    columns: &str,
+) -> Result<Vec<RecordBatch>> {
+    Ok(ctx
+        .sql(&format!("SELECT {columns} FROM steps WHERE episode_key = {quoted_key} ORDER BY step"))
+        .await?
+        .collect()
+        .await?)
+}
+
+/// Row `row` of the fixed-size-list column `column` as an array of `N`.
+fn fixed_row<T: arrow::datatypes::ArrowPrimitiveType, const N: usize>(
+    batch: &RecordBatch,
+    column: usize,
+    row: usize,
+) -> Result<[T::Native; N]> {
+    let value = batch.column(column).as_fixed_size_list().value(row);
+    Ok(value.as_primitive::<T>().values().as_ref().try_into()?)
 }

@@ -263,7 +263,30 @@ impl PolicySpec {
             (PolicySpec::TorchScript { file, .. }, Benchmark::AlohaSim) => {
                 Ok(crate::models::torchscript_aloha::TorchScriptAloha::load(file)?.identity())
             }
-            _ => self.resolve_libero_identity(),
+            (_, Benchmark::AlohaSim) => Ok(self.aloha_identity()),
+            (_, Benchmark::Libero) => self.resolve_libero_identity(),
+        }
+    }
+
+    /// The identity of the ALOHA-sim forms of the policies without a model or server (what
+    /// [`instantiate_aloha`](Self::instantiate_aloha) makes of them).
+    fn aloha_identity(&self) -> serde_json::Value {
+        match self {
+            PolicySpec::Expert => serde_json::json!({
+                "kind": "scripted expert", "name": "expert", "privileged": true, "benchmark": "aloha_sim",
+                "plan": "ACT's scripted policies (scripted_policy.py waypoint tables) recorded per episode in gym-aloha's end-effector scene with the mocap weld's solimp[0..2] = 0.9, replayed as 14-D joint targets in the unmodified joint-space env",
+                "chunking": 1,
+            }),
+            PolicySpec::Random => serde_json::json!({
+                "kind": "baseline", "name": "random", "benchmark": "aloha_sim",
+                "distribution": "per joint a random walk from the first observed agent_pos (steps uniform in ±0.1 rad, within ±1.2 rad), grippers uniform [0, 1]",
+                "rng": "ChaCha8 seeded per episode from the episode key", "chunking": 1,
+            }),
+            PolicySpec::NanAt(n) => serde_json::json!({
+                "kind": "diagnostic", "name": "nan-at", "step": n, "benchmark": "aloha_sim",
+                "action": "holds the first observed agent_pos, NaN at the step",
+            }),
+            other => other.identity(),
         }
     }
 

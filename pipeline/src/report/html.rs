@@ -69,7 +69,7 @@ th{background:#f3f3f3}td.n{text-align:right;font-variant-numeric:tabular-nums}\
 figure{display:inline-block;margin:6px}figcaption{font-size:12px;max-width:520px}\
 video,img{max-width:520px;border:1px solid #ccc}";
 
-/// Fixed palette of the failure modes (harness faults in greys and purple).
+/// Fixed palette of LIBERO's failure modes (harness faults in greys and purple).
 const MODE_COLORS: &[(&str, &str)] = &[
     ("timeout", "#9ecae1"),
     ("incomplete", "#3182bd"),
@@ -81,8 +81,37 @@ const MODE_COLORS: &[(&str, &str)] = &[
     ("error", "#252525"),
 ];
 
+/// ALOHA-sim's modes (`queries/aloha_failure_modes.sql`): the reward stage an episode stopped at,
+/// light (nothing touched) to dark (all but done), then the modes it shares with LIBERO.
+const ALOHA_MODE_COLORS: &[(&str, &str)] = &[
+    ("never_touched", "#c6dbef"),
+    ("not_grasped", "#9ecae1"),
+    ("not_lifted", "#6baed6"),
+    ("not_transferred", "#3182bd"),
+    ("not_aligned", "#fdae6b"),
+    ("not_inserted", "#fd8d3c"),
+    ("dropped", "#e6550d"),
+    ("transient_success", "#74c476"),
+    ("error", "#252525"),
+];
+
 fn mode_color(mode: &str) -> &'static str {
-    MODE_COLORS.iter().find(|(m, _)| *m == mode).map_or("#bbbbbb", |(_, c)| c)
+    MODE_COLORS.iter().chain(ALOHA_MODE_COLORS).find(|(m, _)| *m == mode).map_or("#bbbbbb", |(_, c)| c)
+}
+
+/// The benchmarks of the runs, as the page names them ("LIBERO", "ALOHA-sim", or both).
+fn benchmarks_of(runs: &[RunTables]) -> String {
+    let mut names: Vec<&str> = runs
+        .iter()
+        .map(|r| match r.manifest.env {
+            libero_schema::Benchmark::Libero => "LIBERO",
+            libero_schema::Benchmark::AlohaSim => "ALOHA-sim",
+        })
+        .collect();
+    names.dedup();
+    names.sort();
+    names.dedup();
+    names.join(" + ")
 }
 
 impl Page {
@@ -92,7 +121,8 @@ impl Page {
         let subject = &runs[0];
         let _ = write!(
             body,
-            "<h1>LIBERO evaluation: {}</h1><p class=muted>success definition: <b>{}</b> · runs: {} · every number below is a query over the stored steps (queries/*.sql)</p>",
+            "<h1>{} evaluation: {}</h1><p class=muted>success definition: <b>{}</b> · runs: {} · every number below is a query over the stored steps (queries/*.sql)</p>",
+            benchmarks_of(runs),
             esc(&subject.manifest.policy),
             esc(scoring),
             runs.iter()
@@ -154,7 +184,8 @@ impl Page {
         section_provenance(&mut body, runs);
 
         let html = format!(
-            "<!doctype html><html lang=en><head><meta charset=utf-8><title>LIBERO report: {}</title><style>{STYLE}</style></head><body>{body}<script>{SCRIPT}</script></body></html>",
+            "<!doctype html><html lang=en><head><meta charset=utf-8><title>{} report: {}</title><style>{STYLE}</style></head><body>{body}<script>{SCRIPT}</script></body></html>",
+            benchmarks_of(runs),
             esc(&subject.manifest.policy)
         );
         Ok(Page { html, warnings })
@@ -245,14 +276,18 @@ fn section_heatmap(body: &mut String, runs: &[RunTables]) {
         for t in &rows {
             suites.entry(get(t, "suite")).or_default().push(t);
         }
+        // a LIBERO suite has 10 tasks, ALOHA-sim 2: as many columns as the run's largest task id
+        // needs, at most 10
+        let columns =
+            rows.iter().filter_map(|t| get(t, "task_id").parse::<usize>().ok()).max().map_or(1, |m| (m + 1).min(10));
         let _ = write!(body, "<table class=heatmap><tr><th>{}</th>", esc(&r.manifest.policy));
-        for t in 0..10 {
+        for t in 0..columns {
             let _ = write!(body, "<th class=cell>task {t}</th>");
         }
         body.push_str("</tr>");
         for (suite, tasks) in &suites {
             let _ = write!(body, "<tr><th>{}</th>", esc(suite));
-            for t in 0..10 {
+            for t in 0..columns {
                 match tasks.iter().find(|x| get(x, "task_id") == t.to_string()) {
                     Some(x) => {
                         let rate = num(x, "success_rate");
@@ -297,7 +332,8 @@ fn rate_cell(body: &mut String, row: &BTreeMap<String, String>, title: &str) {
 fn section_failures(body: &mut String, runs: &[RunTables]) {
     body.push_str(
         "<h2 id=failures>Failure modes</h2><p class=muted>One primary mode per failed episode (queries/failure_modes.sql, \
-         which defines each mode and holds the thresholds). Harness faults (error, init_drift, saturated_actions) are the set-up's, not the policy's.</p>",
+         which defines each mode and holds the thresholds; ALOHA-sim's are the reward stage an episode stopped at, queries/aloha_failure_modes.sql). \
+         Harness faults (error, init_drift, saturated_actions) are the set-up's, not the policy's.</p>",
     );
     let rows: Vec<_> = runs.iter().flat_map(|r| Rows::of(&r.failure_summary).rows).collect();
     if rows.is_empty() {
@@ -311,7 +347,15 @@ fn section_failures(body: &mut String, runs: &[RunTables]) {
     let (w, row_h, left) = (760.0, 22.0, 260.0);
     let h = row_h * groups.len() as f64 + 4.0;
     body.push_str("<div class=legend>");
-    for (m, c) in MODE_COLORS {
+    let has = |b: libero_schema::Benchmark| runs.iter().any(|r| r.manifest.env == b);
+    let mut legend: Vec<&(&str, &str)> = vec![];
+    if has(libero_schema::Benchmark::Libero) {
+        legend.extend(MODE_COLORS);
+    }
+    if has(libero_schema::Benchmark::AlohaSim) {
+        legend.extend(ALOHA_MODE_COLORS.iter().filter(|m| !legend.contains(m)).collect::<Vec<_>>());
+    }
+    for (m, c) in legend {
         let _ = write!(
             body,
             "<span style='display:inline-block;width:10px;height:10px;background:{c}'></span> {m} &nbsp; "
@@ -424,6 +468,10 @@ fn video_of_run(dir: &Path, file: &str, run_config: &str) -> bool {
 }
 
 fn section_smoke(body: &mut String, subject: &RunTables, out: &Path) {
+    // `pipeline smoke` draws LIBERO's suites; an ALOHA-sim run's pictures are its failure videos
+    if subject.manifest.env != libero_schema::Benchmark::Libero {
+        return;
+    }
     body.push_str("<h2 id=smoke>Smoke pictures</h2><p class=muted>Task 0, init state 0 of each suite as the policy sees it (agentview | eye-in-hand), from <code>pipeline smoke</code>.</p>");
     let suites: Vec<String> = Rows::of(&subject.suites).rows.iter().map(|r| get(r, "suite").to_string()).collect();
     let mut shown = 0;
@@ -670,6 +718,12 @@ fn section_published(body: &mut String, runs: &[RunTables]) {
         );
     }
     body.push_str("</tbody></table>");
+    if rows.is_empty() {
+        body.push_str(
+            "<p class=muted>No published number for the suites of these runs in data/published_libero.csv \
+             (ALOHA-sim's published rates are per task and per training set: see the README's ALOHA-sim section).</p>",
+        );
+    }
 }
 
 fn section_provenance(body: &mut String, runs: &[RunTables]) {

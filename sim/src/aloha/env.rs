@@ -185,9 +185,22 @@ impl AlohaEnv {
     /// colours as they are, and dm_control's default scene options (geom groups 0–2 shown).
     pub fn renderer(&mut self, gl: Rc<GlContext>) -> Result<SceneRenderer, SimError> {
         let options = RenderOptions { look: Look::Mujoco337, quality: Quality::Reference, max_width: 0, max_height: 0 };
+        self.renderer_with(gl, options)
+    }
+
+    /// A render context with other options (a larger buffer for a captioned panel, preview
+    /// quality), the same scene options as [`renderer`](Self::renderer).
+    pub fn renderer_with(&mut self, gl: Rc<GlContext>, options: RenderOptions) -> Result<SceneRenderer, SimError> {
         let mut renderer = SceneRenderer::new(gl, &mut self.model, options)?;
         renderer.set_geom_group(0, true);
         Ok(renderer)
+    }
+
+    /// Draw a camera's view of the current state into a region of the renderer's buffer
+    /// (reference row order, like everything in the buffer).
+    pub fn draw_camera(&mut self, renderer: &mut SceneRenderer, camera: usize, rect: Rect) -> Result<(), SimError> {
+        // SAFETY: the renderer was made from this env's model (`renderer_with`), data is live.
+        unsafe { renderer.draw_camera(self.model.ffi(), self.data.ffi_mut(), camera, rect) }
     }
 
     /// A camera's 480 × 640 frame of the current state, upright (dm_control flips the rows MuJoCo
@@ -195,8 +208,7 @@ impl AlohaEnv {
     pub fn render(&mut self, renderer: &mut SceneRenderer, camera: &str) -> Result<Frame, SimError> {
         let id = renderer.camera_id(camera)?;
         let rect = Rect::new(0, 0, TOP_WIDTH, TOP_HEIGHT);
-        // SAFETY: the renderer was made from this env's model (`renderer()`), data is live.
-        unsafe { renderer.draw_camera(self.model.ffi(), self.data.ffi_mut(), id, rect)? };
+        self.draw_camera(renderer, id, rect)?;
         Ok(renderer.read(rect)?.upright())
     }
 

@@ -96,6 +96,10 @@ PUBLISHED = REPO / "data" / "published_libero.csv"
 CANONICAL_CAPS = {"libero_spatial": 220, "libero_object": 280, "libero_goal": 300, "libero_10": 520, "libero_90": 400}
 CANONICAL_WAIT, CANONICAL_SEED, CANONICAL_TRIALS = 10, 7, 50
 SUITE_ORDER = ["libero_spatial", "libero_object", "libero_goal", "libero_10", "libero_90"]
+# ALOHA-sim (suite aloha_sim, the episodes' env column): lerobot's protocol (50 episodes per task,
+# seed 1000 + i, 400 steps) or gym-aloha's registration cap (300); no wait steps.
+ALOHA_CAPS, ALOHA_FIRST_SEED = (400, 300), 1000
+ALOHA_JOINTS = ["waist", "shoulder", "elbow", "forearm_roll", "wrist_angle", "wrist_rotate", "gripper"]
 
 print(f"run:       {RUN}")
 print(f"outputs:   {OUTPUTS}")
@@ -138,6 +142,10 @@ R = load_run(RUN)
 manifest, episodes, specs = R["manifest"], R["episodes"], R["specs"]
 steps = scan_steps(RUN)
 POLICY = manifest.get("policy", "?")
+# Which benchmark the run is of (one per run): LIBERO, or ALOHA-sim; runs before tables v7 have no
+# env column and are LIBERO's.
+ENV = manifest.get("env", "libero")
+ALOHA = ENV == "aloha_sim"
 SUITES = [s for s in SUITE_ORDER if s in set(episodes["suite"])] + sorted(set(episodes["suite"]) - set(SUITE_ORDER))
 print(f"{episodes.height} episodes of policy {POLICY!r} over {SUITES}")
 
@@ -213,11 +221,18 @@ bad_caps = [
     for r in caps.iter_rows(named=True)
     if r["caps"] != [CANONICAL_CAPS.get(r["suite"])]
 ]
-check("episode caps are the protocol's 220/280/300/520", not bad_caps, "; ".join(bad_caps) or str(manifest.get("max_steps")))
 waits = sorted(set(E["num_steps_wait"]))
-check("10 wait steps before the policy acts", waits == [CANONICAL_WAIT], f"num_steps_wait {waits}")
 seeds = sorted(set(E["seed"]))
-check("env seed 7", seeds == [CANONICAL_SEED], f"seeds {seeds}")
+if ALOHA:
+    caps_seen = sorted(set(E["max_steps"]))
+    check("episode cap is lerobot's 400 or gym-aloha's 300", all(c in ALOHA_CAPS for c in caps_seen), f"caps {caps_seen}")
+    check("no wait steps (lerobot's and openpi's loops have none)", waits == [0], f"num_steps_wait {waits}")
+    off = E.filter(pl.col("seed") != ALOHA_FIRST_SEED + pl.col("init_state_id")).height
+    check("lerobot's seeds: episode i has seed 1000 + i", off == 0, f"{off} episodes with another seed")
+else:
+    check("episode caps are the protocol's 220/280/300/520", not bad_caps, "; ".join(bad_caps) or str(manifest.get("max_steps")))
+    check("10 wait steps before the policy acts", waits == [CANONICAL_WAIT], f"num_steps_wait {waits}")
+    check("env seed 7", seeds == [CANONICAL_SEED], f"seeds {seeds}")
 if specs is not None:
     key = ["suite", "task_id", "init_state_id", "seed"]
     pending = specs.select(key).join(E.select(key), on=key, how="anti").height
@@ -250,9 +265,11 @@ print(f"sanity: {CHECKS.filter(pl.col('status') == 'ok').height}/{CHECKS.height}
 
 # %%
 smoke = sorted((OUTPUTS / "smoke").glob("*.png"))
-if not smoke:
+if ALOHA:
+    print("ALOHA-sim: `pipeline smoke` draws LIBERO's suites; the top camera an ALOHA policy sees is in the failure videos (step 7)")
+elif not smoke:
     print(f"no smoke pictures in {OUTPUTS / 'smoke'}: make them with `pipeline smoke --out {OUTPUTS / 'smoke'}`")
-for png in smoke:
+for png in [] if ALOHA else smoke:
     print(png.name)
     display(Image(filename=str(png), width=640))
 
@@ -310,8 +327,17 @@ tasks = suite_sort(
         pl.col("goal_terms").list.join(" ∧ ").alias("goal"),
     )
 )
-display(tasks.select("suite", "task_id", "instruction", "goal", "n_terms", "look_alikes", "n_episodes", "n_success"))
-print(f"{tasks.height} tasks; {tasks.filter(pl.col('look_alikes') != '').height} name an object that has look-alikes in the scene")
+if ALOHA:
+    # one goal per task, reward 4 of gym-aloha's contact ladder (queries/aloha_failure_modes.sql names the stages)
+    ladder = {
+        0: "reward 4: the cube held by the left gripper off the table (1 right touches, 2 right lifts, 3 left touches)",
+        1: "reward 4: the peg touches the socket's pin (1 both grasped, 2 both lifted, 3 peg touches socket)",
+    }
+    tasks = tasks.with_columns(pl.col("task_id").replace_strict(ladder, default="?", return_dtype=pl.Utf8).alias("goal"))
+    display(tasks.select("suite", "task_id", "instruction", "goal", "n_episodes", "n_success"))
+else:
+    display(tasks.select("suite", "task_id", "instruction", "goal", "n_terms", "look_alikes", "n_episodes", "n_success"))
+    print(f"{tasks.height} tasks; {tasks.filter(pl.col('look_alikes') != '').height} name an object that has look-alikes in the scene")
 
 # %% [markdown]
 # ## Step 4 — The policy
@@ -341,30 +367,38 @@ acts = (
     .unnest("action")
     .collect()
 )
-DIMS = ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"]
-action_stats = pl.DataFrame({
+# LIBERO: a 7-D end-effector delta in [-1, 1]; ALOHA-sim: per arm 6 absolute joint targets (rad)
+# and a normalized gripper (0 closed … 1 open)
+DIMS = [f"{arm}_{j}" for arm in ("left", "right") for j in ALOHA_JOINTS] if ALOHA else ["dx", "dy", "dz", "droll", "dpitch", "dyaw", "gripper"]
+stats = {
     "dim": DIMS,
-    "mean": [acts[f"a{i}"].mean() for i in range(7)],
-    "std": [acts[f"a{i}"].std() for i in range(7)],
-    "min": [acts[f"a{i}"].min() for i in range(7)],
-    "max": [acts[f"a{i}"].max() for i in range(7)],
-    "at_bound_pct": [100 * (acts[f"a{i}"].abs() >= 0.999).mean() for i in range(7)],
-})
+    "mean": [acts[f"a{i}"].mean() for i in range(len(DIMS))],
+    "std": [acts[f"a{i}"].std() for i in range(len(DIMS))],
+    "min": [acts[f"a{i}"].min() for i in range(len(DIMS))],
+    "max": [acts[f"a{i}"].max() for i in range(len(DIMS))],
+}
+if not ALOHA:
+    stats["at_bound_pct"] = [100 * (acts[f"a{i}"].abs() >= 0.999).mean() for i in range(7)]
+action_stats = pl.DataFrame(stats)
 display(action_stats)
-print(f"{acts.height} policy steps; gripper close (>0) in {100 * (acts['a6'] > 0).mean():.1f}% of them (the gripper is ±1 by design)")
-arm_sat = action_stats.filter(pl.col("dim") != "gripper")["at_bound_pct"].max()
-if arm_sat > 50:
-    print(f"WARN: an arm dimension is at ±1 in {arm_sat:.0f}% of the policy steps: check the un-normalisation (unnorm_key)")
+if ALOHA:
+    print(f"{acts.height} policy steps; grippers open (> 0.5) in {100 * (acts['a6'] > 0.5).mean():.1f}% (left) and {100 * (acts['a13'] > 0.5).mean():.1f}% (right) of them")
+else:
+    print(f"{acts.height} policy steps; gripper close (>0) in {100 * (acts['a6'] > 0).mean():.1f}% of them (the gripper is ±1 by design)")
+    arm_sat = action_stats.filter(pl.col("dim") != "gripper")["at_bound_pct"].max()
+    if arm_sat > 50:
+        print(f"WARN: an arm dimension is at ±1 in {arm_sat:.0f}% of the policy steps: check the un-normalisation (unnorm_key)")
 print(
     f"policy call {acts['policy_ms'].mean():.2f} ms mean (p95 {acts['policy_ms'].quantile(0.95):.2f}), "
     f"env step {acts['sim_ms'].mean():.2f} ms mean; "
     f"{1000 / max(acts['policy_ms'].mean() + acts['sim_ms'].mean(), 1e-9):.0f} policy steps/s per worker"
 )
 
-fig, axes = plt.subplots(1, 7, figsize=(16, 2.4))
+fig, axes = plt.subplots(len(DIMS) // 7, 7, figsize=(16, 2.4 * (len(DIMS) // 7)), squeeze=False)
 sample = acts.sample(min(acts.height, 200_000), seed=0)
-for i, ax in enumerate(axes):
-    ax.hist(sample[f"a{i}"].to_numpy(), bins=41, range=(-1.05, 1.05), color="tab:blue", log=True)
+for i, ax in enumerate(axes.flat):
+    # joint targets are in rad, not in [-1, 1]: the range is the data's
+    ax.hist(sample[f"a{i}"].to_numpy(), bins=41, range=None if ALOHA else (-1.05, 1.05), color="tab:blue", log=True)
     ax.set_title(DIMS[i], fontsize=9)
     ax.tick_params(labelsize=7)
 fig.suptitle(f"actions sent by {POLICY} (policy steps)", fontsize=10)
@@ -548,7 +582,36 @@ else:
     print(f"failure modes: absent ({fm_csv}; `pipeline failures --run {RUN} --out {OUTPUTS}` writes it, where your build has the command)")
 
 # %%
-for ep in chosen.iter_rows(named=True):
+for ep in chosen.iter_rows(named=True) if ALOHA else []:
+    # ALOHA-sim's evidence: the reward ladder (0-4) and the grippers over the episode
+    key = ep["episode_key"]
+    s = steps.filter(pl.col("episode_key") == key).select("step", "reward", "agent_pos").sort("step").collect()
+    mode = ""
+    if failure_modes is not None and "episode_key" in failure_modes.columns:
+        m = failure_modes.filter(pl.col("episode_key") == key)
+        if m.height and "failure_mode" in m.columns:
+            mode = f" · failure mode: {m['failure_mode'][0]}"
+    print(f"FAILURE {key}{mode}")
+    print(f"  instruction: {ep['instruction']}")
+    print(f"  {ep['n_policy_steps']} policy steps (cap {ep['max_steps']}), error: {ep['error_kind'] or 'none'}")
+    reward = s["reward"].to_list()
+    firsts = {r: next((i for i, x in enumerate(reward) if x >= r), None) for r in range(1, 5)}
+    print(f"  reward: max {max(reward, default=0)}, at the end {reward[-1] if reward else '-'}; first step at each stage: {firsts}")
+    print(f"  video: pipeline video --run {RUN} --episode {key} --out {OUTPUTS / 'failures'}")
+    fig, axes = plt.subplots(2, 1, figsize=(12, 4), sharex=True)
+    axes[0].step(s["step"].to_numpy(), reward, where="post", color="tab:green")
+    axes[0].set_ylabel("reward")
+    axes[0].set_ylim(-0.2, 4.2)
+    axes[1].plot(s["step"].to_numpy(), s["agent_pos"].arr.get(6).to_numpy(), label="left gripper")
+    axes[1].plot(s["step"].to_numpy(), s["agent_pos"].arr.get(13).to_numpy(), label="right gripper")
+    axes[1].set_ylabel("gripper (normalized)")
+    axes[1].set_xlabel("step")
+    axes[1].legend(loc="upper right", fontsize=8)
+    fig.suptitle(f"{key}: {ep['instruction']}", fontsize=10)
+    fig.tight_layout()
+    plt.show()
+
+for ep in [] if ALOHA else chosen.iter_rows(named=True):
     key = ep["episode_key"]
     s = (
         steps.filter(pl.col("episode_key") == key)
@@ -613,6 +676,11 @@ for v in videos:
 # %%
 published = pl.read_csv(PUBLISHED)
 libero_pub = published.filter(pl.col("benchmark") == "libero")
+if ALOHA:
+    # the table's rows are LIBERO's; ALOHA-sim's published rates (ACT's README, lerobot's model
+    # cards) are per task and per training set (human or scripted demonstrations)
+    print("ALOHA-sim: data/published_libero.csv holds no ALOHA-sim row; compare per task (`results_by_task.csv`) with the README's ALOHA-sim section")
+    libero_pub = libero_pub.clear()
 our = {r["suite"]: r for r in results.iter_rows(named=True)}
 stop = bool(manifest.get("stop_on_success", False))
 
@@ -635,47 +703,48 @@ def protocol_diff(r: dict) -> str:
     return ", ".join(d)
 
 
-rows = []
-for r in libero_pub.iter_rows(named=True):
-    o = our.get(r["suite"])
-    inside = o is not None and o["ci_lo"] <= r["success_rate"] <= o["ci_hi"]
-    rows.append({**r, "protocol_vs_run": protocol_diff(r), "in_run_ci": inside if o is not None else None})
-pub = pl.DataFrame(rows, infer_schema_length=None)
-label = pl.concat_str([pl.col("model"), pl.lit(" · "), pl.col("variant").fill_null(""), pl.lit(" · "), pl.col("reported_by")])
-wide = (
-    pub.with_columns(label.alias("row"), (pl.col("success_rate") * 100).round(1).cast(pl.Utf8).alias("pct"))
-    .pivot(on="suite", index="row", values="pct", aggregate_function="first")
-)
-proto = pub.with_columns(label.alias("row")).group_by("row", maintain_order=True).agg(
-    trials=pl.col("trials_per_task").first(),
-    cap=pl.col("episode_cap").drop_nulls().unique().sort().cast(pl.Utf8).str.join("/"),
-    differs=pl.col("protocol_vs_run").filter(pl.col("suite").is_in(list(our))).unique().str.join("; "),
-)
-this_row = {"row": f"THIS RUN · {POLICY} · {RUN.name}"}
-for s in ["libero_spatial", "libero_object", "libero_goal", "libero_10"]:
-    o = our.get(s)
-    this_row[s] = f"{100 * o['success_rate']:.1f} [{100 * o['ci_lo']:.1f}, {100 * o['ci_hi']:.1f}]" if o else "—"
-suite_cols = [c for c in ["libero_spatial", "libero_object", "libero_goal", "libero_10"] if c in wide.columns]
-table = pl.concat(
-    [
-        pl.DataFrame([this_row]).select("row", *suite_cols).with_columns(
-            trials=pl.lit(int(results["n_rollouts_per_task"].min())),
-            cap=pl.lit("/".join(str(v) for v in results["episode_length_cap"])),
-            differs=pl.lit(""),
-        ),
-        wide.select("row", *[pl.col(c).fill_null("—") for c in suite_cols]).join(proto, on="row").with_columns(pl.col("trials").cast(pl.Int32)),
-    ],
-    how="vertical_relaxed",
-)
-display(table)
-
-inside = pub.filter(pl.col("in_run_ci") == True)  # noqa: E712
-for s, o in our.items():
-    names = inside.filter(pl.col("suite") == s).select(pl.concat_str(["model", pl.lit(" ("), "reported_by", pl.lit(")")]))
-    print(
-        f"{s}: this run {100 * o['success_rate']:.1f}% [{100 * o['ci_lo']:.1f}, {100 * o['ci_hi']:.1f}] n={o['n_total']}; "
-        f"published rows inside that interval: {', '.join(names.to_series().to_list()) or 'none'}"
+if not ALOHA:
+    rows = []
+    for r in libero_pub.iter_rows(named=True):
+        o = our.get(r["suite"])
+        inside = o is not None and o["ci_lo"] <= r["success_rate"] <= o["ci_hi"]
+        rows.append({**r, "protocol_vs_run": protocol_diff(r), "in_run_ci": inside if o is not None else None})
+    pub = pl.DataFrame(rows, infer_schema_length=None)
+    label = pl.concat_str([pl.col("model"), pl.lit(" · "), pl.col("variant").fill_null(""), pl.lit(" · "), pl.col("reported_by")])
+    wide = (
+        pub.with_columns(label.alias("row"), (pl.col("success_rate") * 100).round(1).cast(pl.Utf8).alias("pct"))
+        .pivot(on="suite", index="row", values="pct", aggregate_function="first")
     )
+    proto = pub.with_columns(label.alias("row")).group_by("row", maintain_order=True).agg(
+        trials=pl.col("trials_per_task").first(),
+        cap=pl.col("episode_cap").drop_nulls().unique().sort().cast(pl.Utf8).str.join("/"),
+        differs=pl.col("protocol_vs_run").filter(pl.col("suite").is_in(list(our))).unique().str.join("; "),
+    )
+    this_row = {"row": f"THIS RUN · {POLICY} · {RUN.name}"}
+    for s in ["libero_spatial", "libero_object", "libero_goal", "libero_10"]:
+        o = our.get(s)
+        this_row[s] = f"{100 * o['success_rate']:.1f} [{100 * o['ci_lo']:.1f}, {100 * o['ci_hi']:.1f}]" if o else "—"
+    suite_cols = [c for c in ["libero_spatial", "libero_object", "libero_goal", "libero_10"] if c in wide.columns]
+    table = pl.concat(
+        [
+            pl.DataFrame([this_row]).select("row", *suite_cols).with_columns(
+                trials=pl.lit(int(results["n_rollouts_per_task"].min())),
+                cap=pl.lit("/".join(str(v) for v in results["episode_length_cap"])),
+                differs=pl.lit(""),
+            ),
+            wide.select("row", *[pl.col(c).fill_null("—") for c in suite_cols]).join(proto, on="row").with_columns(pl.col("trials").cast(pl.Int32)),
+        ],
+        how="vertical_relaxed",
+    )
+    display(table)
+
+    inside = pub.filter(pl.col("in_run_ci") == True)  # noqa: E712
+    for s, o in our.items():
+        names = inside.filter(pl.col("suite") == s).select(pl.concat_str(["model", pl.lit(" ("), "reported_by", pl.lit(")")]))
+        print(
+            f"{s}: this run {100 * o['success_rate']:.1f}% [{100 * o['ci_lo']:.1f}, {100 * o['ci_hi']:.1f}] n={o['n_total']}; "
+            f"published rows inside that interval: {', '.join(names.to_series().to_list()) or 'none'}"
+        )
 
 # %% [markdown]
 # **Commentary (fill in).** Where does this run match the published numbers, where not, and

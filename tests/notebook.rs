@@ -45,6 +45,33 @@ fn outputs(ipynb: &Path) -> (String, Vec<String>, usize) {
     (text, errors, images)
 }
 
+/// `jupytext --execute` of the notebook on `run`, with `outputs` and the baseline run `random`:
+/// the executed `.ipynb` (the command must succeed).
+fn execute(jupytext: &Path, d: &Path, run: &Path, outputs_dir: &Path, random: &Path) -> PathBuf {
+    let executed = d.join("libero_eval.ipynb");
+    let root = repo_root();
+    let out = Command::new(jupytext)
+        .args(["--to", "ipynb", "--execute", "--run-path"])
+        .arg(root.join("notebooks"))
+        .arg(root.join("notebooks/libero_eval.py"))
+        .arg("-o")
+        .arg(&executed)
+        .env("LIBERO_RUN", run)
+        .env("LIBERO_OUTPUTS", outputs_dir)
+        .env("LIBERO_BASELINE_RUNS", random)
+        .env_remove("LIBERO_REPO")
+        .current_dir(&root)
+        .output()
+        .expect("run jupytext");
+    assert!(
+        out.status.success(),
+        "the notebook failed:\nstdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    executed
+}
+
 #[test]
 fn notebook_executes_headless_on_a_small_real_run() {
     let jupytext = jupytext();
@@ -77,27 +104,7 @@ fn notebook_executes_headless_on_a_small_real_run() {
     eprintln!("runs and results: {:.0} s", t0.elapsed().as_secs_f64());
 
     let t1 = Instant::now();
-    let executed = d.join("libero_eval.ipynb");
-    let root = repo_root();
-    let out = Command::new(&jupytext)
-        .args(["--to", "ipynb", "--execute", "--run-path"])
-        .arg(root.join("notebooks"))
-        .arg(root.join("notebooks/libero_eval.py"))
-        .arg("-o")
-        .arg(&executed)
-        .env("LIBERO_RUN", &run)
-        .env("LIBERO_OUTPUTS", &outputs_dir)
-        .env("LIBERO_BASELINE_RUNS", &random)
-        .env_remove("LIBERO_REPO")
-        .current_dir(&root)
-        .output()
-        .expect("run jupytext");
-    assert!(
-        out.status.success(),
-        "the notebook failed:\nstdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let executed = execute(&jupytext, &d, &run, &outputs_dir, &random);
     eprintln!("notebook executed in {:.0} s", t1.elapsed().as_secs_f64());
 
     let (text, errors, images) = outputs(&executed);
@@ -134,5 +141,46 @@ fn notebook_executes_headless_on_a_small_real_run() {
     assert!(text.contains("no smoke pictures in"), "{text}");
     assert!(text.contains("failure videos: absent"), "{text}");
     eprintln!("notebook test: {:.0} s", t0.elapsed().as_secs_f64());
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+/// The same notebook on an ALOHA-sim run (the episodes' `env`): ALOHA's protocol checks (cap 300
+/// or 400, no wait steps, seeds 1000 + i), 14-D actions by joint, the failed insertion drilled
+/// into through the reward ladder, the same Wilson check against `results.csv`, the baseline.
+#[test]
+fn notebook_reads_an_aloha_sim_run() {
+    let jupytext = jupytext();
+    let d = test_dir("notebook", "aloha");
+    let arg = |p: &Path| p.to_str().unwrap().to_string();
+    let specs = d.join("specs.parquet");
+    ok(pipeline(&["specs", "--benchmark", "aloha_sim", "--trials", "1", "-o", &arg(&specs)]));
+    // at gym-aloha's 300 cap the scripted transfer succeeds and the insertion (~332) does not
+    let run = d.join("expert");
+    ok(pipeline(&["run", &arg(&specs), "--out", &arg(&run), "--policy", "expert", "--max-steps", "300"]));
+    let random = d.join("random");
+    ok(pipeline(&["run", &arg(&specs), "--out", &arg(&random), "--policy", "random", "--max-steps", "300"]));
+    let outputs_dir = d.join("outputs");
+    ok(pipeline(&["results", "--run", &arg(&run), "--run", &arg(&random), "--out", &arg(&outputs_dir)]));
+    ok(pipeline(&["failures", "--run", &arg(&run), "--out", &arg(&outputs_dir)]));
+    let executed = execute(&jupytext, &d, &run, &outputs_dir, &random);
+
+    let (text, errors, images) = outputs(&executed);
+    assert!(errors.is_empty(), "error outputs: {errors:?}");
+    assert!(images >= 3, "{images} plots in the executed notebook");
+    for needle in [
+        "RESULT suite=aloha_sim policy=expert n_success=1 n_total=2 ",
+        "results.csv check: match",
+        "BASELINE random aloha_sim 0/2 = 0.0%",
+        "FAILURE aloha_sim/1/0/1000 · failure mode: not_aligned",
+        "reward: max 2",
+        "right_wrist_rotate",
+        "lerobot's seeds: episode i has seed 1000 + i",
+        "data/published_libero.csv holds no ALOHA-sim row",
+    ] {
+        assert!(text.contains(needle), "no `{needle}` in the notebook's outputs:\n{text}");
+    }
+    let sanity = text.lines().find(|l| l.starts_with("sanity: ")).unwrap_or_else(|| panic!("no sanity line:\n{text}"));
+    let counts: Vec<&str> = sanity["sanity: ".len()..].split(' ').next().unwrap().split('/').collect();
+    assert_eq!(counts[0], counts[1], "{sanity}\n{text}");
     let _ = std::fs::remove_dir_all(&d);
 }

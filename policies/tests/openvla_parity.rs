@@ -107,6 +107,16 @@ fn tiny_openvla_matches_the_python_reference() {
         assert!(max_abs_diff(&b.step_logits, &fb.step_logits) <= 1e-4);
         assert_eq!(b.tokens, fb.tokens, "fused batched tokens");
     }
+    // 8 sequences: the preallocated KV cache (`Fusion::static_cache`, from STATIC_CACHE_MIN_ROWS)
+    // and q/k/v stacked in the decode steps; each row decodes what it decodes alone
+    let eight: Vec<(&RgbImage, &str)> = queries.iter().cycle().take(8).copied().collect();
+    assert!(eight.len() as i64 >= libero_policies::models::openvla::STATIC_CACHE_MIN_ROWS);
+    for (i, fb) in fused.predict_actions(&eight, Some(unnorm_key)).unwrap().iter().enumerate() {
+        let b = &batched[i % batched.len()];
+        let d = max_abs_diff(&b.step_logits, &fb.step_logits);
+        assert!(d <= 1e-4, "row {i} of 8 (static cache): logits differ by {d}");
+        assert_eq!(b.tokens, fb.tokens, "row {i} of 8 (static cache): tokens");
+    }
 
     // errors that name what to fix
     let e = model.predict_action(&image, instruction, Some("libero_nope")).unwrap_err();

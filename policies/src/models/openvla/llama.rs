@@ -32,6 +32,17 @@ struct Layer {
 /// 70.6 ms a call with q/k/v stacked, 97.3 without), at B = 64 slower.
 pub const FUSED_PROJECTION_MAX_ROWS: i64 = 8;
 
+/// Most sequences of a decode step (one position each) for which [`Fusion::qkv`] stacks q, k and
+/// v when the cache is preallocated ([`Fusion::static_cache`]): cuBLAS's one GEMM of 64 rows × 12288
+/// took 0.042 ms on the H100, its three of 4096 0.091 ms (`data/benchmarks/gpu-static-cache-h100-2026-11-27`).
+pub const FUSED_QKV_DECODE_MAX_ROWS: i64 = 64;
+
+/// Fewest sequences of a generation whose KV cache is preallocated ([`Fusion::static_cache`]):
+/// on the H100 it made a call of 8 sequences 124 ms instead of 146 and one of 64 647 ms instead of
+/// 701, but one sequence 96 ms instead of 67, where the copies `torch.cat` saves are small and
+/// the attention over a view of the buffer costs more than over a tensor of its own.
+pub const STATIC_CACHE_MIN_ROWS: i64 = 8;
+
 /// Fewer, larger kernels where transformers runs several: the decode steps of a small batch are
 /// bound by kernel launches on the GPU, not by its arithmetic. Each is a switch of its own so that
 /// the bench can measure what each buys (`policies/benches/openvla.rs --fusion`). Off, the forward
@@ -59,24 +70,35 @@ pub struct Fusion {
     /// The rotary embedding's `x·cos + rotate_half(x)·sin` as a multiply and a fused multiply-add
     /// (one rounding fewer than transformers').
     pub rotary_fma: bool,
+    /// Keys and values written in place into buffers preallocated for the whole generation
+    /// ([`Llama::new_cache_with_capacity`]), the attention reading a view of the filled part,
+    /// instead of transformers' `torch.cat` of the cache at every decode step, which copies every
+    /// layer's keys and values (B = 64: 0.33 ms a layer and step with the copy, 0.15 without).
+    /// The same values in the same order: a layout change, not an arithmetic one.
+    pub static_cache: bool,
 }
 
 impl Fusion {
-    pub const NONE: Fusion = Fusion { norm: false, qkv: false, gate_up: false, rotary_fma: false };
-    pub const ALL: Fusion = Fusion { norm: true, qkv: true, gate_up: true, rotary_fma: true };
+    pub const NONE: Fusion = Fusion { norm: false, qkv: false, gate_up: false, rotary_fma: false, static_cache: false };
+    pub const ALL: Fusion = Fusion { norm: true, qkv: true, gate_up: true, rotary_fma: true, static_cache: true };
 }
 
 impl std::fmt::Display for Fusion {
     /// `none`, `all`, or the parts on joined by `+` (`norm+qkv`), as [`Fusion::from_str`] reads them.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let parts: Vec<&str> =
-            [(self.norm, "norm"), (self.qkv, "qkv"), (self.gate_up, "gate_up"), (self.rotary_fma, "rotary_fma")]
-                .into_iter()
-                .filter_map(|(on, name)| on.then_some(name))
-                .collect();
+        let parts: Vec<&str> = [
+            (self.norm, "norm"),
+            (self.qkv, "qkv"),
+            (self.gate_up, "gate_up"),
+            (self.rotary_fma, "rotary_fma"),
+            (self.static_cache, "static_cache"),
+        ]
+        .into_iter()
+        .filter_map(|(on, name)| on.then_some(name))
+        .collect();
         match parts.len() {
             0 => write!(f, "none"),
-            4 => write!(f, "all"),
+            5 => write!(f, "all"),
             _ => write!(f, "{}", parts.join("+")),
         }
     }
@@ -97,9 +119,10 @@ impl std::str::FromStr for Fusion {
                 "qkv" => f.qkv = true,
                 "gate_up" => f.gate_up = true,
                 "rotary_fma" => f.rotary_fma = true,
+                "static_cache" => f.static_cache = true,
                 other => {
                     return Err(format!(
-                        "{other:?} is not a fusion: none, all, or norm, qkv, gate_up, rotary_fma joined by +"
+                        "{other:?} is not a fusion: none, all, or norm, qkv, gate_up, rotary_fma, static_cache joined by +"
                     ));
                 }
             }
@@ -145,6 +168,9 @@ pub struct KvCache {
     len: i64,
     /// `[B]` int64 left padding per row; `None` when no row is padded.
     pad: Option<Tensor>,
+    /// Positions the per-layer buffers hold ([`Fusion::static_cache`]): `kv` are then
+    /// `[B, kv_heads, capacity, head_dim]` buffers of which the first `len` positions are filled.
+    capacity: Option<i64>,
 }
 
 impl Llama {
@@ -211,7 +237,17 @@ impl Llama {
     pub fn new_cache(&self, left_pad: &[i64]) -> KvCache {
         let device = self.embed.device();
         let pad = left_pad.iter().any(|&p| p > 0).then(|| Tensor::from_slice(left_pad).to_device(device));
-        KvCache { kv: (0..self.layers.len()).map(|_| None).collect(), len: 0, pad }
+        KvCache { kv: (0..self.layers.len()).map(|_| None).collect(), len: 0, pad, capacity: None }
+    }
+
+    /// [`Self::new_cache`] for a generation of at most `capacity` positions (prompt and generated
+    /// tokens): with [`Fusion::static_cache`] and at least [`STATIC_CACHE_MIN_ROWS`] sequences, its
+    /// keys and values go into buffers of that length.
+    pub fn new_cache_with_capacity(&self, left_pad: &[i64], capacity: i64) -> KvCache {
+        let mut cache = self.new_cache(left_pad);
+        let rows = left_pad.len() as i64;
+        cache.capacity = (self.fusion.static_cache && rows >= STATIC_CACHE_MIN_ROWS).then_some(capacity);
+        cache
     }
 
     /// `[B, T]` token ids → `[B, T, hidden]`.
@@ -304,9 +340,11 @@ impl Llama {
         let mut x = embeds.shallow_clone();
         for (li, l) in self.layers.iter().enumerate() {
             let h = self.rms_norm(&x, &l.input_norm);
-            // few rows of dense weights only (see `Fusion::qkv`)
+            // few rows of dense weights only (see `Fusion::qkv`); a decode step of up to 64
+            // sequences when its keys and values go into the preallocated buffers
             let few = b * t <= FUSED_PROJECTION_MAX_ROWS;
-            let fuse_qkv = self.fusion.qkv && few && l.qkv.is_dense();
+            let decode_in_place = t == 1 && b <= FUSED_QKV_DECODE_MAX_ROWS && cache.capacity.is_some();
+            let fuse_qkv = self.fusion.qkv && (few || decode_in_place) && l.qkv.is_dense();
             let fuse_gate_up = self.fusion.gate_up && few && l.gate_up.is_dense();
             let (q, k, v) = if fuse_qkv {
                 // `[B, heads + 2 · kv_heads, T, head_dim]`: the rotation once over the queries and keys
@@ -319,13 +357,32 @@ impl Llama {
                 };
                 (rope(&heads(0, nh)), rope(&heads(nh, nkv)), heads(nh + nkv, nkv))
             };
-            let (k, v) = match cache.kv[li].take() {
-                Some((pk, pv)) => (Tensor::cat(&[&pk, &k], 2), Tensor::cat(&[&pv, &v], 2)),
-                // copies of their own: views would keep the whole projection alive in the cache
-                None if fuse_qkv => (k.contiguous(), v.contiguous()),
-                None => (k, v),
+            let (k, v) = match (cache.kv[li].take(), cache.capacity) {
+                // in place: this forward's positions written into the buffers, a view of the filled part read
+                (previous, Some(capacity)) => {
+                    assert!(total <= capacity, "the KV cache holds {capacity} positions, the forward needs {total}");
+                    let (bk, bv) = previous.unwrap_or_else(|| {
+                        let buffer = || Tensor::empty([b, nkv, capacity, hd], (k.kind(), device));
+                        (buffer(), buffer())
+                    });
+                    bk.narrow(2, cache.len, t).copy_(&k);
+                    bv.narrow(2, cache.len, t).copy_(&v);
+                    let filled = (bk.narrow(2, 0, total), bv.narrow(2, 0, total));
+                    cache.kv[li] = Some((bk, bv));
+                    filled
+                }
+                (Some((pk, pv)), None) => {
+                    let (k, v) = (Tensor::cat(&[&pk, &k], 2), Tensor::cat(&[&pv, &v], 2));
+                    cache.kv[li] = Some((k.shallow_clone(), v.shallow_clone()));
+                    (k, v)
+                }
+                (None, None) => {
+                    // copies of their own: views would keep the whole projection alive in the cache
+                    let (k, v) = if fuse_qkv { (k.contiguous(), v.contiguous()) } else { (k, v) };
+                    cache.kv[li] = Some((k.shallow_clone(), v.shallow_clone()));
+                    (k, v)
+                }
             };
-            cache.kv[li] = Some((k.shallow_clone(), v.shallow_clone()));
             let (k, v) = if nkv < nh {
                 (k.repeat_interleave_self_int(nh / nkv, 1, None), v.repeat_interleave_self_int(nh / nkv, 1, None))
             } else {
@@ -357,5 +414,28 @@ impl Llama {
         }
         cache.len = total;
         x
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fusion_parts_print_and_parse_back() {
+        for f in [
+            Fusion::NONE,
+            Fusion::ALL,
+            Fusion { static_cache: true, ..Fusion::NONE },
+            Fusion { qkv: false, ..Fusion::ALL },
+        ] {
+            assert_eq!(f.to_string().parse::<Fusion>().unwrap(), f, "{f}");
+        }
+        assert_eq!(Fusion::ALL.to_string(), "all");
+        assert_eq!(
+            "norm+static_cache".parse::<Fusion>().unwrap(),
+            Fusion { norm: true, static_cache: true, ..Fusion::NONE }
+        );
+        assert!("norm+cache".parse::<Fusion>().unwrap_err().contains("static_cache"));
     }
 }

@@ -40,7 +40,7 @@ use crate::placement::Quantization;
 use crate::preprocess::RgbImage;
 pub use action::ActionBins;
 pub use config::OpenVlaConfig;
-pub use llama::{Attention, Fusion};
+pub use llama::{Attention, FUSED_QKV_DECODE_MAX_ROWS, Fusion, STATIC_CACHE_MIN_ROWS};
 
 /// What the language model's kernels are, for the run manifest ([`Fusion`]).
 pub const KERNELS: &str = "GPU: one GEMM for q/k/v and one for gate/up, torch's fused RMSNorm, the rotary embedding with a fused \
@@ -251,7 +251,9 @@ impl OpenVlaModel {
                     Tensor::cat(&[padding, emb.narrow(1, 0, 1), patches, emb.narrow(1, 1, n - 1)], 1)
                 })
                 .collect();
-            let mut cache = self.llm.new_cache(&left_pad);
+            // room for the prompt and the generated tokens but the last (it is not fed back)
+            let capacity = (longest + projected.size()[1] as usize + stats.dim()) as i64;
+            let mut cache = self.llm.new_cache_with_capacity(&left_pad, capacity);
             let mut logits = self.llm.forward(&Tensor::cat(&rows, 0), &mut cache);
             // the tokens stay on the device until the last step: a read-back per step would make
             // the host wait for each step's kernels before it could queue the next step's

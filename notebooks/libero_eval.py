@@ -582,11 +582,9 @@ else:
     print(f"failure modes: absent ({fm_csv}; `pipeline failures --run {RUN} --out {OUTPUTS}` writes it, where your build has the command)")
 
 # %%
-for ep in chosen.iter_rows(named=True) if ALOHA else []:
-    # ALOHA-sim's evidence: the reward ladder (0-4) and the grippers over the episode
-    key = ep["episode_key"]
-    s = steps.filter(pl.col("episode_key") == key).select("step", "reward", "agent_pos").sort("step").collect()
-    mode = ""
+def print_failure_header(ep: dict) -> None:
+    """The drilled-into episode's key, its failure mode (from failure_modes.csv when there), instruction and length."""
+    key, mode = ep["episode_key"], ""
     if failure_modes is not None and "episode_key" in failure_modes.columns:
         m = failure_modes.filter(pl.col("episode_key") == key)
         if m.height and "failure_mode" in m.columns:
@@ -594,6 +592,13 @@ for ep in chosen.iter_rows(named=True) if ALOHA else []:
     print(f"FAILURE {key}{mode}")
     print(f"  instruction: {ep['instruction']}")
     print(f"  {ep['n_policy_steps']} policy steps (cap {ep['max_steps']}), error: {ep['error_kind'] or 'none'}")
+
+
+for ep in chosen.iter_rows(named=True) if ALOHA else []:
+    # ALOHA-sim's evidence: the reward ladder (0-4) and the grippers over the episode
+    key = ep["episode_key"]
+    s = steps.filter(pl.col("episode_key") == key).select("step", "reward", "agent_pos").sort("step").collect()
+    print_failure_header(ep)
     reward = s["reward"].to_list()
     firsts = {r: next((i for i, x in enumerate(reward) if x >= r), None) for r in range(1, 5)}
     print(f"  reward: max {max(reward, default=0)}, at the end {reward[-1] if reward else '-'}; first step at each stage: {firsts}")
@@ -623,14 +628,7 @@ for ep in [] if ALOHA else chosen.iter_rows(named=True):
     terms = ep["goal_terms"]
     tv = pol["goal_terms"].to_list()
     touched = sorted(set(pol["gripper_contacts"].explode().drop_nulls()))
-    mode = ""
-    if failure_modes is not None and "episode_key" in failure_modes.columns:
-        m = failure_modes.filter(pl.col("episode_key") == key)
-        if m.height and "failure_mode" in m.columns:
-            mode = f" · failure mode: {m['failure_mode'][0]}"
-    print(f"FAILURE {key}{mode}")
-    print(f"  instruction: {ep['instruction']}")
-    print(f"  {ep['n_policy_steps']} policy steps (cap {ep['max_steps']}), error: {ep['error_kind'] or 'none'}")
+    print_failure_header(ep)
     for j, t in enumerate(terms):
         col = [row[j] for row in tv] if tv else []
         print(f"  term {t!r}: at start {col[0] if col else '-'}, ever {any(col)}, at end {col[-1] if col else '-'}")

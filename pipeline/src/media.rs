@@ -121,11 +121,7 @@ pub fn render_panel(
     layout: &PanelLayout,
     caption: &str,
 ) -> Result<Frame> {
-    let ids = layout.cameras.iter().map(|c| renderer.camera_id(c)).collect::<Result<Vec<_>, _>>()?;
-    for (i, id) in ids.into_iter().enumerate() {
-        env.draw_camera(renderer, id, layout.camera_rect(i))?;
-    }
-    finish_panel(renderer, layout, caption)
+    compose_panel(renderer, layout, caption, |r, id, rect| env.draw_camera(r, id, rect))
 }
 
 /// [`render_panel`] for an ALOHA-sim env (its `top` camera, [`PanelArgs::aloha_layout`]).
@@ -135,15 +131,21 @@ pub fn render_aloha_panel(
     layout: &PanelLayout,
     caption: &str,
 ) -> Result<Frame> {
-    let ids = layout.cameras.iter().map(|c| renderer.camera_id(c)).collect::<Result<Vec<_>, _>>()?;
-    for (i, id) in ids.into_iter().enumerate() {
-        env.draw_camera(renderer, id, layout.camera_rect(i))?;
-    }
-    finish_panel(renderer, layout, caption)
+    compose_panel(renderer, layout, caption, |r, id, rect| env.draw_camera(r, id, rect))
 }
 
-/// The caption over the drawn cameras, and the whole panel read back upright.
-fn finish_panel(renderer: &mut SceneRenderer, layout: &PanelLayout, caption: &str) -> Result<Frame> {
+/// `layout`'s cameras drawn by `draw` (an env's own camera drawing), the caption over them, the
+/// whole panel read back upright.
+fn compose_panel(
+    renderer: &mut SceneRenderer,
+    layout: &PanelLayout,
+    caption: &str,
+    mut draw: impl FnMut(&mut SceneRenderer, usize, Rect) -> Result<(), libero_sim::SimError>,
+) -> Result<Frame> {
+    let ids = layout.cameras.iter().map(|c| renderer.camera_id(c)).collect::<Result<Vec<_>, _>>()?;
+    for (i, id) in ids.into_iter().enumerate() {
+        draw(renderer, id, layout.camera_rect(i))?;
+    }
     renderer.draw_text(layout.caption_rect(), &layout.wrap(caption), CAPTION_BACKGROUND)?;
     Ok(renderer.read(Rect::new(0, 0, layout.width(), layout.height()))?.upright())
 }

@@ -196,6 +196,17 @@ pub(crate) fn load_module(file: &Path) -> Result<(CModule, Device, String), Poli
     Ok((module, device, sha256))
 }
 
+/// An RGB image as a module's image input: float32 `[1, 3, H, W]` in [0, 1].
+pub(crate) fn unit_chw_tensor(img: &RgbImage) -> Tensor {
+    let (h, w) = (img.height as i64, img.width as i64);
+    Tensor::from_slice(&img.rgb)
+        .reshape([h, w, 3])
+        .permute([2, 0, 1])
+        .to_kind(Kind::Float)
+        .divide_scalar(255.0)
+        .unsqueeze(0)
+}
+
 /// A loaded TorchScript module and its manifest: runs batches of observations.
 pub struct TorchScriptModel {
     module: CModule,
@@ -250,13 +261,7 @@ impl TorchScriptModel {
                 img.width, img.height
             )));
         }
-        let (h, w) = (img.height as i64, img.width as i64);
-        Ok(Tensor::from_slice(&img.rgb)
-            .reshape([h, w, 3])
-            .permute([2, 0, 1])
-            .to_kind(Kind::Float)
-            .divide_scalar(255.0)
-            .unsqueeze(0))
+        Ok(unit_chw_tensor(&img))
     }
 
     /// The forward's arguments for one observation, each with a batch dimension of 1.

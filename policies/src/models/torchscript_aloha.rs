@@ -24,7 +24,7 @@
 //!
 //! One forward per episode query; `?batch=` is LIBERO's only (refused before a run).
 
-use super::torchscript::{load_module, read_manifest};
+use super::torchscript::{load_module, read_manifest, unit_chw_tensor};
 use crate::aloha::{ALOHA_ACTION_DIM, AlohaAction, AlohaObservation, AlohaPolicy};
 use crate::chunking::ActionChunker;
 use crate::preprocess::image::resize_with_pad;
@@ -166,13 +166,7 @@ impl TorchScriptAloha {
             TopPreprocessing::None => img,
             TopPreprocessing::Pad224 => resize_with_pad(&img, 224, 224, Filter::Bilinear),
         };
-        let (h, w) = (img.height as i64, img.width as i64);
-        Ok(Tensor::from_slice(&img.rgb)
-            .reshape([h, w, 3])
-            .permute([2, 0, 1])
-            .to_kind(Kind::Float)
-            .divide_scalar(255.0)
-            .unsqueeze(0))
+        Ok(unit_chw_tensor(&img))
     }
 
     /// One forward: the chunk for `obs`.

@@ -15,6 +15,11 @@
 //! once (default: its own, all on CUDA); for each set but `none` it also reports the tokens and
 //! first-step logits against `none` (transformers' operations one by one) on 32 random inputs.
 //!
+//! `--phases` (OpenVLA) then times each phase of a call at each B with the device synchronised
+//! at the phase's end (`models::openvla::PHASES`: the inputs' upload and normalisation, the vision
+//! tower, the language model's input, the prefill, the decode steps, the read-back), and the
+//! host-side normalisation the device's replaced, checking that both give the same bits.
+//!
 //! **Serving** (`--serve WORKERS --devices cuda:0,cuda:1 --seconds S`, OpenVLA): the path a run
 //! takes, timed without the simulator: WORKERS threads, each a rollout worker's
 //! [`BatchedPolicy`] on the shared replicas (one per device, `batching::shared_replicas`), each
@@ -72,6 +77,7 @@ struct Args {
     devices: Vec<ModelDevice>,
     seconds: f64,
     episode_steps: usize,
+    phases: bool,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -91,6 +97,7 @@ fn parse_args() -> Result<Args, String> {
         devices: vec![ModelDevice::Cuda(0)],
         seconds: 60.0,
         episode_steps: 220,
+        phases: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -125,6 +132,7 @@ fn parse_args() -> Result<Args, String> {
             "--json" => a.json = Some(value()?.into()),
             "--quant" => a.quant = value()?.parse()?,
             "--agreement" => a.agreement = true,
+            "--phases" => a.phases = true,
             "--fusion" => {
                 a.fusions = value()?
                     .split('/')
@@ -427,7 +435,8 @@ fn token_agreement(
 }
 
 /// `fusion` against transformers' operations one by one (`Fusion::NONE`), on the same model and
-/// inputs: the tokens and first-step logits of both.
+/// inputs: the tokens and first-step logits of both, in batches of 8 (the preallocated cache) and,
+/// on the first 8 inputs, one query a call (`torch.cat`'s cache; a B = 1 forward's own paths).
 fn fusion_agreement(
     model: &mut OpenVlaModel,
     fusion: Fusion,
@@ -435,14 +444,20 @@ fn fusion_agreement(
     images: &[RgbImage],
 ) -> serde_json::Value {
     let (queries, before) = (queries_of(images), model.fusion());
+    let one_by_one = |model: &OpenVlaModel| -> Vec<Prediction> {
+        queries[..8.min(queries.len())]
+            .iter()
+            .flat_map(|q| predict_all(model, std::slice::from_ref(q), unnorm))
+            .collect()
+    };
     model.set_fusion(fusion);
-    let fused = predict_all(model, &queries, unnorm);
+    let (fused, fused_alone) = (predict_all(model, &queries, unnorm), one_by_one(model));
     model.set_fusion(Fusion::NONE);
-    let plain = predict_all(model, &queries, unnorm);
+    let (plain, plain_alone) = (predict_all(model, &queries, unnorm), one_by_one(model));
     model.set_fusion(before);
-    let summary = agreement(&fused, &plain);
-    println!("  fusion {fusion} vs none on {} inputs: {summary}", queries.len());
-    summary
+    let (batched, alone) = (agreement(&fused, &plain), agreement(&fused_alone, &plain_alone));
+    println!("  fusion {fusion} vs none on {} inputs: {batched}; one query a call: {alone}", queries.len());
+    serde_json::json!({"batches_of_8": batched, "one_query_a_call": alone})
 }
 
 fn queries_of(images: &[RgbImage]) -> Vec<(&RgbImage, &'static str)> {
@@ -476,6 +491,100 @@ fn agreement(ours: &[Prediction], theirs: &[Prediction]) -> serde_json::Value {
 
 fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+/// The processor's normalisation as the host computed it before `pixel_values_of` (f32 on the CPU,
+/// one image at a time, each uploaded): its time, and the device's values checked against it.
+fn host_pixel_values(m: &OpenVlaModel, images: &[&RgbImage]) -> tch::Tensor {
+    let config = m.config();
+    let size = config.backbones[0].image_size;
+    let parts: Vec<tch::Tensor> = images
+        .iter()
+        .map(|image| {
+            let x = tch::Tensor::from_slice(&image.rgb).view([size, size, 3]).permute([2, 0, 1]).to_kind(Kind::Float)
+                / 255.0;
+            let per_backbone: Vec<tch::Tensor> = config
+                .backbones
+                .iter()
+                .map(|b| {
+                    let mean = tch::Tensor::from_slice(&b.mean.map(|v| v as f32)).view([3, 1, 1]);
+                    let std = tch::Tensor::from_slice(&b.std.map(|v| v as f32)).view([3, 1, 1]);
+                    (&x - mean) / std
+                })
+                .collect();
+            tch::Tensor::cat(&per_backbone, 0).unsqueeze(0).to_device(m.device())
+        })
+        .collect();
+    tch::Tensor::cat(&parts, 0)
+}
+
+/// `--phases`: each phase's median over `iters` calls of B queries, the device synchronised at
+/// each phase's end (so the phases add up to a slower call than the unsynchronised one).
+fn phases(m: &OpenVlaModel, b: usize, size: u32, args: &Args, unnorm: Option<&str>) -> serde_json::Value {
+    use libero_policies::models::openvla::PHASES;
+    let images = random_images(b, size, 3 + b as u64);
+    let queries: Vec<(&RgbImage, &str)> = (0..b).map(|i| (&images[i], INSTRUCTIONS[i % INSTRUCTIONS.len()])).collect();
+    let sync = || {
+        if let Device::Cuda(i) = args.device {
+            tch::Cuda::synchronize(i as i64)
+        }
+    };
+    let mut per_phase: Vec<Vec<f64>> = vec![Vec::new(); PHASES.len() + 1];
+    let mut host = Vec::new();
+    let refs: Vec<&RgbImage> = images.iter().collect();
+    for i in 0..args.warmup + args.iters {
+        sync();
+        let t = Instant::now();
+        let mut last = t;
+        let mut k = 0;
+        m.predict_actions_marked(&queries, unnorm, &mut |name| {
+            sync();
+            assert_eq!(name, PHASES[k], "the phases come in PHASES' order");
+            let now = Instant::now();
+            if i >= args.warmup {
+                per_phase[k].push((now - last).as_secs_f64());
+            }
+            (last, k) = (now, k + 1);
+        })
+        .unwrap_or_else(|e| panic!("{e}"));
+        sync();
+        if i >= args.warmup {
+            per_phase[PHASES.len()].push(last.elapsed().as_secs_f64());
+        }
+        let t = Instant::now();
+        let on_host = host_pixel_values(m, &refs);
+        sync();
+        host.push(t.elapsed().as_secs_f64());
+        if i == 0 {
+            let on_device = m.pixel_values_of(&refs).expect("pixel values").to_kind(Kind::Float);
+            let host_kind = on_host.to_kind(m.kind()).to_kind(Kind::Float);
+            assert!(
+                on_device.equal(&host_kind),
+                "the device's pixel values differ from the host's: max |d| = {}",
+                (&on_device - &host_kind).abs().max().double_value(&[])
+            );
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        percentile(v, 0.5) * 1e3
+    };
+    let names: Vec<&str> = PHASES.iter().copied().chain(["results"]).collect();
+    let ms: Vec<f64> = per_phase.iter_mut().map(median).collect();
+    let host_ms = median(&mut host);
+    let line: Vec<String> = names.iter().zip(&ms).map(|(n, t)| format!("{n} {t:.1}")).collect();
+    println!(
+        "  phases B={b:>3} (ms, synchronised): {}; sum {:.1}; the host's normalisation it replaced {host_ms:.1}",
+        line.join(", "),
+        ms.iter().sum::<f64>()
+    );
+    let mut row = serde_json::Map::new();
+    row.insert("batch".into(), b.into());
+    for (n, t) in names.iter().zip(&ms) {
+        row.insert(format!("{n}_ms"), (*t).into());
+    }
+    row.insert("host_normalisation_ms".into(), host_ms.into());
+    row.into()
 }
 
 fn main() {
@@ -524,6 +633,19 @@ fn main() {
         );
         worst
     });
+    // our CUDA kernels against libtorch's operators (OpenVLA on CUDA)
+    let kernel_check = match openvla.as_ref().filter(|_| args.device.is_cuda()).map(|m| m.kernels()) {
+        Some(Ok(kernels)) => {
+            let check = libero_policies::models::openvla::kernels::self_check(kernels, args.device);
+            println!("  our kernels vs libtorch's operators (max bf16 ulps, fraction bit-equal): {check}");
+            check
+        }
+        Some(Err(why)) => {
+            println!("  our kernels: none ({why}); the fusions that need them use libtorch's operators");
+            serde_json::json!({"unavailable": why})
+        }
+        None => serde_json::Value::Null,
+    };
     let config = openvla.as_ref().map(|m| m.config()).or(oft.as_ref().map(|m| m.config())).expect("a model");
     let unnorm = config.norm_stats.keys().into_iter().next();
     let size = config.backbones[0].image_size as u32;
@@ -643,6 +765,10 @@ fn main() {
             fusion_agreements.push(serde_json::json!({"fusion": fusion.to_string(), "agreement": summary}));
         }
     }
+    let phase_rows: Vec<serde_json::Value> = match (&openvla, args.phases) {
+        (Some(m), true) => args.batches.iter().map(|&b| phases(m, b, size, &args, unnorm.as_deref())).collect(),
+        _ => Vec::new(),
+    };
     // after the timings: the unquantised model then shares the device
     let quant_agreement = match (&openvla, args.agreement && args.quant != Quantization::None) {
         (Some(m), true) => token_agreement(m, &dir, args.device, kind, unnorm.as_deref(), &random_images(32, size, 7)),
@@ -653,8 +779,8 @@ fn main() {
             "implementation": "rust (tch, libtorch)", "model": what, "attention": format!("{attention:?}"), "checkpoint": dir.display().to_string(),
             "device": format!("{:?}", args.device), "dtype": format!("{kind:?}"), "quant": args.quant.to_string(),
             "load_s": load_s, "reference_agreement": reference_agreement, "quant_agreement": quant_agreement,
-            "fusion_agreement": fusion_agreements,
-            "tinygemm_vs_dequantised": tinygemm_check, "results": rows,
+            "fusion_agreement": fusion_agreements, "kernel_check": kernel_check,
+            "tinygemm_vs_dequantised": tinygemm_check, "results": rows, "phases": phase_rows,
         });
         std::fs::write(out, serde_json::to_string_pretty(&report).expect("json")).expect("write --json");
     }

@@ -60,7 +60,7 @@ for part in "$@"; do
           --batch 1,8,32,64 --warmup 3 --iters 10 "${agree[@]}" --json "$out/quant-$q.json" 2>&1 | tee -a "$out/quant.log"
       done ;;
     fused)
-      "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --fusion none/norm/qkv/gate_up/rotary_fma/static_cache/all \
+      "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --fusion none/norm/qkv/gate_up/rotary_fma/static_cache/rotary_kernel/norm_kernel/swiglu_kernel/all \
         --batch 1,8,32,64 --warmup 3 --iters 10 --json "$out/fusion-sdpa.json" 2>&1 | tee -a "$out/fused.log"
       "$BENCH" --checkpoint "$ckpt" --device cuda --attention eager --fusion none/all \
         --batch 1,64 --warmup 3 --iters 10 --json "$out/fusion-eager.json" 2>&1 | tee -a "$out/fused.log" ;;

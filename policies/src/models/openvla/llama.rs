@@ -7,6 +7,7 @@
 
 use super::OpenVlaError;
 use super::config::LlamaConfig;
+use super::kernels::Kernels;
 use super::weights::Weights;
 use crate::models::quant::Linear;
 use tch::{Device, Kind, Tensor};
@@ -76,30 +77,65 @@ pub struct Fusion {
     /// layer's keys and values (B = 64: 0.33 ms a layer and step with the copy, 0.15 without).
     /// The same values in the same order: a layout change, not an arithmetic one.
     pub static_cache: bool,
+    /// The rotary embedding of q and k in one kernel of ours ([`super::kernels`]) that reads the
+    /// projection's output and writes the queries in the attention's layout and the keys straight
+    /// into the KV cache's buffer, instead of five operators and a copy (CUDA and bf16 only; else
+    /// `rotary_fma` or transformers' operators).
+    pub rotary_kernel: bool,
+    /// The residual add and the following RMSNorm with its weight in one kernel of ours, instead of
+    /// three operators (CUDA and bf16 only; else `norm` or transformers' operators).
+    pub norm_kernel: bool,
+    /// `silu(gate) · up` in one kernel of ours instead of two operators (CUDA and bf16 only).
+    pub swiglu_kernel: bool,
 }
 
 impl Fusion {
-    pub const NONE: Fusion = Fusion { norm: false, qkv: false, gate_up: false, rotary_fma: false, static_cache: false };
-    pub const ALL: Fusion = Fusion { norm: true, qkv: true, gate_up: true, rotary_fma: true, static_cache: true };
+    pub const NONE: Fusion = Fusion {
+        norm: false,
+        qkv: false,
+        gate_up: false,
+        rotary_fma: false,
+        static_cache: false,
+        rotary_kernel: false,
+        norm_kernel: false,
+        swiglu_kernel: false,
+    };
+    pub const ALL: Fusion = Fusion {
+        norm: true,
+        qkv: true,
+        gate_up: true,
+        rotary_fma: true,
+        static_cache: true,
+        rotary_kernel: true,
+        norm_kernel: true,
+        swiglu_kernel: true,
+    };
+
+    /// Each part's name and switch, in the order they print.
+    fn parts(&mut self) -> [(&'static str, &mut bool); 8] {
+        [
+            ("norm", &mut self.norm),
+            ("qkv", &mut self.qkv),
+            ("gate_up", &mut self.gate_up),
+            ("rotary_fma", &mut self.rotary_fma),
+            ("static_cache", &mut self.static_cache),
+            ("rotary_kernel", &mut self.rotary_kernel),
+            ("norm_kernel", &mut self.norm_kernel),
+            ("swiglu_kernel", &mut self.swiglu_kernel),
+        ]
+    }
 }
 
 impl std::fmt::Display for Fusion {
     /// `none`, `all`, or the parts on joined by `+` (`norm+qkv`), as [`Fusion::from_str`] reads them.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let parts: Vec<&str> = [
-            (self.norm, "norm"),
-            (self.qkv, "qkv"),
-            (self.gate_up, "gate_up"),
-            (self.rotary_fma, "rotary_fma"),
-            (self.static_cache, "static_cache"),
-        ]
-        .into_iter()
-        .filter_map(|(on, name)| on.then_some(name))
-        .collect();
-        match parts.len() {
+        let mut copy = *self;
+        let parts = copy.parts();
+        let on: Vec<&str> = parts.iter().filter(|(_, on)| **on).map(|(name, _)| *name).collect();
+        match on.len() {
             0 => write!(f, "none"),
-            5 => write!(f, "all"),
-            _ => write!(f, "{}", parts.join("+")),
+            n if n == parts.len() => write!(f, "all"),
+            _ => write!(f, "{}", on.join("+")),
         }
     }
 }
@@ -114,16 +150,12 @@ impl std::str::FromStr for Fusion {
         }
         let mut f = Fusion::NONE;
         for part in s.split('+') {
-            match part {
-                "norm" => f.norm = true,
-                "qkv" => f.qkv = true,
-                "gate_up" => f.gate_up = true,
-                "rotary_fma" => f.rotary_fma = true,
-                "static_cache" => f.static_cache = true,
-                other => {
-                    return Err(format!(
-                        "{other:?} is not a fusion: none, all, or norm, qkv, gate_up, rotary_fma, static_cache joined by +"
-                    ));
+            let mut parts = f.parts();
+            let names: Vec<&str> = parts.iter().map(|(name, _)| *name).collect();
+            match parts.iter_mut().find(|(name, _)| *name == part) {
+                Some((_, on)) => **on = true,
+                None => {
+                    return Err(format!("{part:?} is not a fusion: none, all, or {} joined by +", names.join(", ")));
                 }
             }
         }
@@ -154,6 +186,9 @@ pub struct Llama {
     norm: Tensor,
     lm_head: Tensor,
     inv_freq: Tensor,
+    /// Our kernels for this device ([`Fusion::rotary_kernel`] and the other `_kernel` parts), or
+    /// why there are none (not CUDA, or NVRTC missing: those parts then fall back to libtorch's).
+    kernels: Result<Kernels, String>,
 }
 
 /// Keys and values of the positions seen so far, per layer (`[B, kv_heads, T, head_dim]`), and
@@ -212,7 +247,19 @@ impl Llama {
             norm: w.take(&format!("{p}norm.weight"))?,
             lm_head,
             inv_freq,
+            kernels: if device.is_cuda() {
+                Kernels::load(device).inspect_err(|why| {
+                    eprintln!("openvla: our CUDA kernels are unavailable ({why}); libtorch's operators run instead")
+                })
+            } else {
+                Err("a CPU has no CUDA kernels".into())
+            },
         })
+    }
+
+    /// Our CUDA kernels, or why this model has none.
+    pub fn kernels(&self) -> Result<&Kernels, &str> {
+        self.kernels.as_ref().map_err(String::as_str)
     }
 
     /// The attention implementation of the following forwards.
@@ -267,6 +314,31 @@ impl Llama {
         let var = h.pow_tensor_scalar(2).mean_dim(-1, true, Kind::Float);
         let h = &h * (var + self.cfg.rms_norm_eps).rsqrt();
         w * h.to_kind(kind)
+    }
+
+    /// The residual step and the RMSNorm after it: `x + delta` (or `x` without a delta) and its
+    /// normalisation with `w`, in one kernel of ours with [`Fusion::norm_kernel`].
+    // tch's `x += y` is in place (`add_`); this new tensor is built without touching x
+    #[allow(clippy::assign_op_pattern)]
+    fn add_norm(&self, x: &Tensor, delta: Option<&Tensor>, w: &Tensor) -> (Tensor, Tensor) {
+        if let Some(k) = self.own_kernel(self.fusion.norm_kernel, x)
+            && x.is_contiguous()
+            && delta.is_none_or(Tensor::is_contiguous)
+            && Kernels::takes_width(w.size()[0])
+        {
+            return k.add_rms_norm(x, delta, w, self.cfg.rms_norm_eps);
+        }
+        let x = match delta {
+            Some(d) => x + d,
+            None => x.shallow_clone(),
+        };
+        let h = self.rms_norm(&x, w);
+        (x, h)
+    }
+
+    /// Our kernels where `part` is on and `x` is a bf16 tensor on their device.
+    fn own_kernel(&self, part: bool, x: &Tensor) -> Option<&Kernels> {
+        self.kernels.as_ref().ok().filter(|_| part && x.kind() == Kind::BFloat16 && x.device().is_cuda())
     }
 
     /// Runs `embeds` `[B, T, hidden]` after the cached positions; returns the logits of each row's
@@ -338,46 +410,67 @@ impl Llama {
             Tensor::zeros(masked.size(), (embeds.kind(), device)).masked_fill(&masked, min).unsqueeze(1)
         });
         let mut x = embeds.shallow_clone();
+        // the previous layer's MLP output, added to the residual stream with the next norm
+        let mut pending: Option<Tensor> = None;
+        let rotary_kernel = self.own_kernel(self.fusion.rotary_kernel, embeds).filter(|_| Kernels::takes_head_dim(hd));
+        let swiglu_kernel = self
+            .own_kernel(self.fusion.swiglu_kernel, embeds)
+            .filter(|_| Kernels::takes_width(self.cfg.intermediate_size));
         for (li, l) in self.layers.iter().enumerate() {
-            let h = self.rms_norm(&x, &l.input_norm);
+            let (x_in, h) = self.add_norm(&x, pending.take().as_ref(), &l.input_norm);
+            x = x_in;
             // few rows of dense weights only (see `Fusion::qkv`); a decode step of up to 64
             // sequences when its keys and values go into the preallocated buffers
             let few = b * t <= FUSED_PROJECTION_MAX_ROWS;
             let decode_in_place = t == 1 && b <= FUSED_QKV_DECODE_MAX_ROWS && cache.capacity.is_some();
             let fuse_qkv = self.fusion.qkv && (few || decode_in_place) && l.qkv.is_dense();
             let fuse_gate_up = self.fusion.gate_up && few && l.gate_up.is_dense();
-            let (q, k, v) = if fuse_qkv {
-                // `[B, heads + 2 · kv_heads, T, head_dim]`: the rotation once over the queries and keys
-                let qkv = l.qkv.forward(&h, None).view([b, t, nh + 2 * nkv, hd]).transpose(1, 2);
-                let qk = rope(&qkv.narrow(1, 0, nh + nkv));
-                (qk.narrow(1, 0, nh), qk.narrow(1, nh, nkv), qkv.narrow(1, nh + nkv, nkv))
-            } else {
-                let heads = |start: i64, n: i64| {
-                    l.qkv.rows(start * hd, n * hd).forward(&h, None).view([b, t, n, hd]).transpose(1, 2)
-                };
-                (rope(&heads(0, nh)), rope(&heads(nh, nkv)), heads(nh + nkv, nkv))
+            // the projections as `[B, T, heads, head_dim]` views
+            let qkv = fuse_qkv.then(|| l.qkv.forward(&h, None).view([b, t, nh + 2 * nkv, hd]));
+            let heads = |start: i64, n: i64| match &qkv {
+                Some(qkv) => qkv.narrow(2, start, n),
+                None => l.qkv.rows(start * hd, n * hd).forward(&h, None).view([b, t, n, hd]),
+            };
+            let (q_in, k_in) = (heads(0, nh), heads(nh, nkv));
+            let v = heads(nh + nkv, nkv).transpose(1, 2);
+            // `[B, heads, T, head_dim]`: the queries rotated; the keys rotated, or left for our
+            // kernel to write where they go
+            let (q, keys) = match (rotary_kernel, &qkv) {
+                (Some(kernel), _) => {
+                    let q = Tensor::empty([b, nh, t, hd], (embeds.kind(), device));
+                    kernel.rotary(&q_in, &cos, &sin, &q);
+                    (q, Keys::Pending(kernel, k_in))
+                }
+                // the rotation once over the queries and keys
+                (None, Some(qkv)) => {
+                    let qk = rope(&qkv.narrow(2, 0, nh + nkv).transpose(1, 2));
+                    (qk.narrow(1, 0, nh), Keys::Rotated(qk.narrow(1, nh, nkv)))
+                }
+                (None, None) => (rope(&q_in.transpose(1, 2)), Keys::Rotated(rope(&k_in.transpose(1, 2)))),
             };
             let (k, v) = match (cache.kv[li].take(), cache.capacity) {
                 // in place: this forward's positions written into the buffers, a view of the filled part read
                 (previous, Some(capacity)) => {
                     assert!(total <= capacity, "the KV cache holds {capacity} positions, the forward needs {total}");
                     let (bk, bv) = previous.unwrap_or_else(|| {
-                        let buffer = || Tensor::empty([b, nkv, capacity, hd], (k.kind(), device));
+                        let buffer = || Tensor::empty([b, nkv, capacity, hd], (v.kind(), device));
                         (buffer(), buffer())
                     });
-                    bk.narrow(2, cache.len, t).copy_(&k);
+                    keys.write_into(&bk.narrow(2, cache.len, t), &cos, &sin);
                     bv.narrow(2, cache.len, t).copy_(&v);
                     let filled = (bk.narrow(2, 0, total), bv.narrow(2, 0, total));
                     cache.kv[li] = Some((bk, bv));
                     filled
                 }
                 (Some((pk, pv)), None) => {
+                    let k = keys.into_tensor(&cos, &sin);
                     let (k, v) = (Tensor::cat(&[&pk, &k], 2), Tensor::cat(&[&pv, &v], 2));
                     cache.kv[li] = Some((k.shallow_clone(), v.shallow_clone()));
                     (k, v)
                 }
                 (None, None) => {
                     // copies of their own: views would keep the whole projection alive in the cache
+                    let k = keys.into_tensor(&cos, &sin);
                     let (k, v) = if fuse_qkv { (k.contiguous(), v.contiguous()) } else { (k, v) };
                     cache.kv[li] = Some((k.shallow_clone(), v.shallow_clone()));
                     (k, v)
@@ -401,19 +494,56 @@ impl Llama {
                 }
             };
             let o = o.transpose(1, 2).reshape([b, t, nh * hd]);
-            x = x + l.o.forward(&o, None);
-            let h = self.rms_norm(&x, &l.post_norm);
+            let (x_mid, h) = self.add_norm(&x, Some(&l.o.forward(&o, None)), &l.post_norm);
+            x = x_mid;
             let inter = l.gate_up.size()[0] / 2;
-            let g = if fuse_gate_up {
+            let (gate, up) = if fuse_gate_up {
                 let gate_up = l.gate_up.forward(&h, None);
-                gate_up.narrow(-1, 0, inter).silu() * gate_up.narrow(-1, inter, inter)
+                (gate_up.narrow(-1, 0, inter), gate_up.narrow(-1, inter, inter))
             } else {
-                l.gate_up.rows(0, inter).forward(&h, None).silu() * l.gate_up.rows(inter, inter).forward(&h, None)
+                (l.gate_up.rows(0, inter).forward(&h, None), l.gate_up.rows(inter, inter).forward(&h, None))
             };
-            x = x + l.down.forward(&g, None);
+            let g = match swiglu_kernel {
+                Some(kernel) => kernel.swiglu(&gate, &up),
+                None => gate.silu() * up,
+            };
+            pending = Some(l.down.forward(&g, None));
+        }
+        if let Some(delta) = pending {
+            x = x + delta;
         }
         cache.len = total;
         x
+    }
+}
+
+/// A layer's rotated keys `[B, kv_heads, T, head_dim]`: computed by libtorch's operators, or the
+/// projection's `[B, T, kv_heads, head_dim]` for our kernel to rotate into wherever they go (the
+/// KV cache's buffer, without a copy).
+enum Keys<'a> {
+    Rotated(Tensor),
+    Pending(&'a Kernels, Tensor),
+}
+
+impl Keys<'_> {
+    fn write_into(self, dest: &Tensor, cos: &Tensor, sin: &Tensor) {
+        match self {
+            // `copy_` takes `&mut self` but writes the shared storage a view shows
+            Keys::Rotated(k) => dest.shallow_clone().copy_(&k),
+            Keys::Pending(kernel, k) => kernel.rotary(&k, cos, sin, dest),
+        }
+    }
+
+    fn into_tensor(self, cos: &Tensor, sin: &Tensor) -> Tensor {
+        match self {
+            Keys::Rotated(k) => k,
+            Keys::Pending(kernel, k) => {
+                let size = k.size();
+                let out = Tensor::empty([size[0], size[2], size[1], size[3]], (k.kind(), k.device()));
+                kernel.rotary(&k, cos, sin, &out);
+                out
+            }
+        }
     }
 }
 
@@ -428,6 +558,7 @@ mod tests {
             Fusion::ALL,
             Fusion { static_cache: true, ..Fusion::NONE },
             Fusion { qkv: false, ..Fusion::ALL },
+            Fusion { rotary_kernel: true, swiglu_kernel: true, ..Fusion::NONE },
         ] {
             assert_eq!(f.to_string().parse::<Fusion>().unwrap(), f, "{f}");
         }
@@ -437,5 +568,9 @@ mod tests {
             Fusion { norm: true, static_cache: true, ..Fusion::NONE }
         );
         assert!("norm+cache".parse::<Fusion>().unwrap_err().contains("static_cache"));
+        assert_eq!(
+            "rotary_kernel+norm_kernel".parse::<Fusion>().unwrap(),
+            Fusion { rotary_kernel: true, norm_kernel: true, ..Fusion::NONE }
+        );
     }
 }

@@ -29,6 +29,7 @@
 
 pub mod action;
 pub mod config;
+pub mod kernels;
 mod llama;
 pub mod oft;
 pub mod policy;
@@ -43,8 +44,10 @@ pub use config::OpenVlaConfig;
 pub use llama::{Attention, FUSED_QKV_DECODE_MAX_ROWS, Fusion, STATIC_CACHE_MIN_ROWS};
 
 /// What the language model's kernels are, for the run manifest ([`Fusion`]).
-pub const KERNELS: &str = "GPU: one GEMM for q/k/v and one for gate/up, torch's fused RMSNorm, the rotary embedding with a fused \
-     multiply-add (logits within bf16 rounding of transformers' operations); CPU: transformers' operations one by one";
+pub const KERNELS: &str = "GPU: one GEMM for q/k/v and one for gate/up, a preallocated KV cache (8+ sequences), and \
+     our own CUDA kernels compiled with NVRTC at load for the rotary embedding (keys written into the cache), the residual \
+     add with the RMSNorm, and SwiGLU (where libnvrtc is missing, torch's fused RMSNorm and operators, with a warning); \
+     logits within bf16 rounding of transformers' operations; CPU: transformers' operations one by one";
 pub use policy::{OpenVlaBatchModel, OpenVlaPolicy};
 use std::path::Path;
 use tch::{Device, Kind, Tensor};
@@ -58,6 +61,11 @@ pub(crate) fn bad(detail: impl Into<String>) -> OpenVlaError {
 
 /// Llama-2's `▁` token, which OpenVLA was trained to see after `Out:`.
 pub const EMPTY_TOKEN: i64 = 29871;
+
+/// The phases of [`OpenVlaModel::predict_actions_marked`], in order: the images' upload and
+/// normalisation with the prompts' tokenisation, the vision tower and projector, the language
+/// model's input, the prefill, the decode steps, and the tokens' read-back.
+pub const PHASES: [&str; 6] = ["inputs", "vision", "prompt", "prefill", "decode", "readback"];
 
 /// openvla's LIBERO prompt (`experiments/robot/openvla_utils.py`, OpenVLA v0.1 excepted).
 pub fn prompt(instruction: &str) -> String {
@@ -155,28 +163,65 @@ impl OpenVlaModel {
         self.llm.attention()
     }
 
+    pub fn device(&self) -> Device {
+        self.device
+    }
+
+    /// Our CUDA kernels ([`kernels`]), or why this model has none.
+    pub fn kernels(&self) -> Result<&kernels::Kernels, &str> {
+        self.llm.kernels()
+    }
+
+    /// The weights' and activations' dtype.
+    pub fn kind(&self) -> Kind {
+        self.kind
+    }
+
     /// The processor's `pixel_values` `[1, 3·backbones, H, W]` of one image already at the model's
-    /// size: per backbone `(x / 255 - mean) / std`.
+    /// size ([`Self::pixel_values_of`]).
     pub fn pixel_values(&self, image: &RgbImage) -> Result<Tensor, OpenVlaError> {
+        self.pixel_values_of(&[image])
+    }
+
+    /// The processor's `pixel_values` `[N, 3·backbones, H, W]` of N images already at the model's
+    /// size: per backbone `(x / 255 - mean) / std` in f32, then the model's dtype.
+    ///
+    /// Why on the device, after one upload of the N images' bytes: at N = 64 the host's f32
+    /// arithmetic and 64 uploads of 1.2 MB each held the GPU idle before every batched forward.
+    /// The divisors are device tensors, not scalars: CUDA divides by a host scalar as a
+    /// multiplication by its reciprocal (one ulp off at times), a tensor by IEEE division, which
+    /// is what the processor computes on the host. The values are the processor's bit for bit on
+    /// either device (`tests/openvla_parity.rs` on the CPU; the bench's `--phases` on CUDA).
+    pub fn pixel_values_of(&self, images: &[&RgbImage]) -> Result<Tensor, OpenVlaError> {
         let size = self.config.backbones[0].image_size;
-        if i64::from(image.width) != size || i64::from(image.height) != size {
-            return Err(bad(format!(
-                "the image is {}x{}; OpenVLA takes {size}x{size} (after the rollout's preprocessing)",
-                image.width, image.height
-            )));
+        let mut bytes = Vec::with_capacity(images.len() * (size * size * 3) as usize);
+        for image in images {
+            if i64::from(image.width) != size || i64::from(image.height) != size {
+                return Err(bad(format!(
+                    "the image is {}x{}; OpenVLA takes {size}x{size} (after the rollout's preprocessing)",
+                    image.width, image.height
+                )));
+            }
+            bytes.extend_from_slice(&image.rgb);
         }
-        let x = Tensor::from_slice(&image.rgb).view([size, size, 3]).permute([2, 0, 1]).to_kind(Kind::Float) / 255.0;
+        let on_device = |values: &[f32]| Tensor::from_slice(values).to_device(self.device);
+        let x = Tensor::from_slice(&bytes)
+            .view([images.len() as i64, size, size, 3])
+            .to_device(self.device)
+            .permute([0, 3, 1, 2])
+            .to_kind(Kind::Float)
+            / on_device(&[255.0]);
         let parts: Vec<Tensor> = self
             .config
             .backbones
             .iter()
             .map(|b| {
-                let mean = Tensor::from_slice(&b.mean.map(|m| m as f32)).view([3, 1, 1]);
-                let std = Tensor::from_slice(&b.std.map(|s| s as f32)).view([3, 1, 1]);
+                let mean = on_device(&b.mean.map(|m| m as f32)).view([1, 3, 1, 1]);
+                let std = on_device(&b.std.map(|s| s as f32)).view([1, 3, 1, 1]);
                 (&x - mean) / std
             })
             .collect();
-        Ok(Tensor::cat(&parts, 0).unsqueeze(0).to_device(self.device).to_kind(self.kind))
+        Ok(Tensor::cat(&parts, 1).to_kind(self.kind))
     }
 
     /// The prompt's token ids: `<s>` first (the tokenizer's template adds it), 29871 last.
@@ -190,6 +235,40 @@ impl OpenVlaModel {
             ids.push(EMPTY_TOKEN);
         }
         Ok(ids)
+    }
+
+    /// The language model's input `[B, T, hidden]`: per row `[padding, <s>, image patches, prompt
+    /// tokens after <s>]`, its `left_pad[b]` padding positions zero (they are masked as keys).
+    ///
+    /// One embedding lookup of the left-padded ids and one gather, whatever B: a row at a time
+    /// cost six operations and an upload per row, during which the GPU, done with the vision
+    /// tower, had nothing queued.
+    fn prompt_embeds(&self, input_ids: &[Vec<i64>], left_pad: &[i64], projected: &Tensor) -> Tensor {
+        let (b, patches, width) = (input_ids.len() as i64, projected.size()[1], projected.size()[2]);
+        let longest = input_ids.iter().map(Vec::len).max().unwrap_or(0) as i64;
+        let t = longest + patches;
+        // the gather's source, per row: the padded ids' embeddings, then the patches, then a zero
+        let (patch_col, zero_col) = (longest, longest + patches);
+        let mut padded = Vec::with_capacity((b * longest) as usize);
+        let mut cols = Vec::with_capacity((b * t) as usize);
+        for (ids, &pad) in input_ids.iter().zip(left_pad) {
+            padded.extend(std::iter::repeat_n(self.bos, pad as usize));
+            padded.extend_from_slice(ids);
+            cols.extend((0..t).map(|p| match p {
+                p if p < pad => zero_col,
+                p if p == pad => pad,
+                p if p <= pad + patches => patch_col + (p - pad - 1),
+                // prompt token `p - pad - patches` after <s>, at that index past the padding
+                p => p - patches,
+            }));
+        }
+        let ids = Tensor::from_slice(&padded).view([b, longest]).to_device(self.device);
+        let embedded = self.llm.embed(&ids);
+        let zero = Tensor::zeros([b, 1, width], (embedded.kind(), self.device));
+        let source = Tensor::cat(&[&embedded, projected, &zero], 1);
+        let rows = Tensor::arange(b, (Kind::Int64, self.device)).view([b, 1]);
+        let cols = Tensor::from_slice(&cols).view([b, t]).to_device(self.device);
+        source.index(&[Some(rows), Some(cols)])
     }
 
     /// The fused patch features `[B, patches, vision width]` and their projection `[B, patches, llm]`.
@@ -223,38 +302,38 @@ impl OpenVlaModel {
         queries: &[(&RgbImage, &str)],
         unnorm_key: Option<&str>,
     ) -> Result<Vec<OpenVlaPrediction>, OpenVlaError> {
+        self.predict_actions_marked(queries, unnorm_key, &mut |_| {})
+    }
+
+    /// [`Self::predict_actions`], calling `mark` with each [`PHASES`] name as that phase's work has
+    /// been queued (the bench's `--phases` synchronises the device there to time each phase).
+    pub fn predict_actions_marked(
+        &self,
+        queries: &[(&RgbImage, &str)],
+        unnorm_key: Option<&str>,
+        mark: &mut dyn FnMut(&'static str),
+    ) -> Result<Vec<OpenVlaPrediction>, OpenVlaError> {
         let stats = self.config.norm_stats.action(unnorm_key).map_err(|e| bad(e.to_string()))?.clone();
         if queries.is_empty() {
             return Ok(Vec::new());
         }
-        let mut pixel_values = Vec::with_capacity(queries.len());
-        let mut input_ids = Vec::with_capacity(queries.len());
-        for (image, instruction) in queries {
-            pixel_values.push(self.pixel_values(image)?);
-            input_ids.push(self.input_ids(instruction)?);
-        }
-        let (_, projected) = self.vision_features(&Tensor::cat(&pixel_values, 0));
+        let images: Vec<&RgbImage> = queries.iter().map(|(image, _)| *image).collect();
+        let pixel_values = self.pixel_values_of(&images)?;
+        let input_ids =
+            queries.iter().map(|(_, instruction)| self.input_ids(instruction)).collect::<Result<Vec<_>, _>>()?;
+        mark("inputs");
+        let (_, projected) = self.vision_features(&pixel_values);
+        mark("vision");
         let longest = input_ids.iter().map(Vec::len).max().unwrap_or(0);
         let left_pad: Vec<i64> = input_ids.iter().map(|ids| (longest - ids.len()) as i64).collect();
         let (tokens, step_logits) = tch::no_grad(|| {
-            // per row: [padding, <s>, image patches, prompt tokens]
-            let rows: Vec<Tensor> = input_ids
-                .iter()
-                .zip(&left_pad)
-                .enumerate()
-                .map(|(b, (ids, &pad))| {
-                    let ids = Tensor::from_slice(ids).view([1, -1]).to_device(self.device);
-                    let emb = self.llm.embed(&ids);
-                    let (n, width) = (emb.size()[1], emb.size()[2]);
-                    let padding = Tensor::zeros([1, pad, width], (emb.kind(), self.device));
-                    let patches = projected.narrow(0, b as i64, 1);
-                    Tensor::cat(&[padding, emb.narrow(1, 0, 1), patches, emb.narrow(1, 1, n - 1)], 1)
-                })
-                .collect();
+            let embeds = self.prompt_embeds(&input_ids, &left_pad, &projected);
+            mark("prompt");
             // room for the prompt and the generated tokens but the last (it is not fed back)
             let capacity = (longest + projected.size()[1] as usize + stats.dim()) as i64;
             let mut cache = self.llm.new_cache_with_capacity(&left_pad, capacity);
-            let mut logits = self.llm.forward(&Tensor::cat(&rows, 0), &mut cache);
+            let mut logits = self.llm.forward(&embeds, &mut cache);
+            mark("prefill");
             // the tokens stay on the device until the last step: a read-back per step would make
             // the host wait for each step's kernels before it could queue the next step's
             let (mut next_tokens, mut all) = (Vec::new(), Vec::new());
@@ -268,11 +347,13 @@ impl OpenVlaModel {
                 }
                 next_tokens.push(next);
             }
+            mark("decode");
             // `[action_dim, B]` on the host, one read-back
             let steps = Tensor::stack(&next_tokens, 0).to_device(Device::Cpu);
             let tokens: Vec<Vec<i64>> = (0..stats.dim() as i64)
                 .map(|s| Vec::<i64>::try_from(&steps.get(s)).expect("argmax is int64"))
                 .collect();
+            mark("readback");
             // `[B, action_dim, vocab]`
             (tokens, Tensor::stack(&all, 1))
         });

@@ -411,19 +411,19 @@ impl OftModel {
             return Ok(Vec::new());
         }
         let b = queries.len() as i64;
-        let mut pixel_values = Vec::with_capacity(queries.len() * NUM_IMAGES);
         let mut input_ids = Vec::with_capacity(queries.len());
         let mut proprio = Vec::with_capacity(queries.len());
         for q in queries {
-            pixel_values.push(self.base.pixel_values(q.primary)?);
-            pixel_values.push(self.base.pixel_values(q.wrist)?);
             input_ids.push(self.base.input_ids(q.instruction)?);
             proprio.push(proprio_stats.normalize(&q.state));
         }
+        // primary, wrist per row
+        let images: Vec<&RgbImage> = queries.iter().flat_map(|q| [q.primary, q.wrist]).collect();
+        let pixel_values = self.base.pixel_values_of(&images)?;
         let device = self.base.device;
         let (normalized, readout) = tch::no_grad(|| {
             // `[2B, patches, hidden]` (primary, wrist per row) → `[B, 2·patches, hidden]`
-            let (_, projected) = self.base.vision_features(&Tensor::cat(&pixel_values, 0));
+            let (_, projected) = self.base.vision_features(&pixel_values);
             let (n_img, width) = (projected.size()[1], projected.size()[2]);
             let projected = projected.reshape([b, NUM_IMAGES as i64 * n_img, width]);
             let proprio_tokens = self.proprio.forward(&self.proprio_input(&proprio)).unsqueeze(1);

@@ -145,6 +145,8 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         stop_on_success: args.stop_on_success,
         instruction_source: args.instruction,
     };
+    // the workers' cameras on GPUs without the model where the machine has such GPUs
+    libero_sim::gl::keep_renders_off(&args.policy.model_cuda_devices());
     let mut manifest = RunManifest {
         tables_version: tables::TABLES_VERSION,
         run_config: String::new(),

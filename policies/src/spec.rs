@@ -95,6 +95,21 @@ impl CheckpointOptions {
         options
     }
 
+    /// The CUDA devices its replicas run on (the default device is cuda:0 where libtorch sees a
+    /// GPU).
+    #[cfg(feature = "torch")]
+    fn cuda_devices(&self) -> Vec<usize> {
+        let default_is_cuda = || tch::Cuda::is_available();
+        self.replica_devices()
+            .into_iter()
+            .filter_map(|d| match d {
+                Some(ModelDevice::Cuda(i)) => Some(i),
+                Some(ModelDevice::Cpu) => None,
+                None => default_is_cuda().then_some(0),
+            })
+            .collect()
+    }
+
     /// The replicas' devices: the listed ones, or the default device once.
     #[cfg(feature = "torch")]
     fn replica_devices(&self) -> Vec<Option<ModelDevice>> {
@@ -132,6 +147,17 @@ impl Batching {
 }
 
 impl PolicySpec {
+    /// The CUDA devices an in-process model of this policy runs on (none for the others): a run
+    /// keeps its cameras' GL contexts off them where the machine has other GPUs
+    /// (`libero_sim::gl::keep_renders_off`).
+    pub fn model_cuda_devices(&self) -> Vec<usize> {
+        match self {
+            #[cfg(feature = "torch")]
+            PolicySpec::OpenVla(o) | PolicySpec::Oft(o) => o.cuda_devices(),
+            _ => Vec::new(),
+        }
+    }
+
     /// A fresh instance for one rollout worker.
     pub fn instantiate(&self) -> Result<Box<dyn Policy>, PolicyError> {
         Ok(match self {

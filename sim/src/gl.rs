@@ -1,5 +1,6 @@
 //! A headless OpenGL context through EGL: Mesa's software renderer (llvmpipe) on a CPU machine,
-//! the NVIDIA driver on a GPU machine. One context per worker thread.
+//! the NVIDIA driver on a GPU machine. One context per worker thread; on a machine with several GPUs
+//! the contexts go to their EGL devices in turn (`choose_device`).
 //!
 //! The context is made the way robosuite's `EGLGLContext` makes it (the reference's renderer): the
 //! EGL *device* platform, a pbuffer-capable RGBA8 config with a 24-bit depth and 8-bit stencil
@@ -10,7 +11,8 @@
 use crate::SimError;
 use khronos_egl as egl;
 use std::ffi::{CStr, c_void};
-use std::sync::OnceLock;
+use std::sync::{Mutex, OnceLock};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 type Egl = egl::DynamicInstance<egl::EGL1_5>;
 
@@ -18,6 +20,8 @@ const PLATFORM_DEVICE_EXT: egl::Enum = 0x313F;
 const PLATFORM_SURFACELESS_MESA: egl::Enum = 0x31DD;
 const EXTENSIONS: egl::Int = 0x3055;
 const DRM_DEVICE_FILE_EXT: egl::Int = 0x3233;
+/// `EGL_NV_device_cuda`: the CUDA device an NVIDIA EGL device is.
+const CUDA_DEVICE_NV: egl::Int = 0x323A;
 
 /// The Debian packages that provide headless EGL on a CPU machine.
 pub const EGL_PACKAGES: &str = "libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1";
@@ -41,13 +45,16 @@ fn no_gl(detail: String) -> SimError {
 }
 
 /// Which EGL device renders: chosen by `MUJOCO_EGL_DEVICE_ID` (the variable robosuite and MuJoCo
-/// read), else the first hardware device, else Mesa's software device.
+/// read), else the hardware devices in turn (one context after another), else Mesa's software device.
 #[derive(Debug, Clone)]
 pub struct DeviceInfo {
     pub index: usize,
     pub software: bool,
     /// The DRM node of a hardware device, when the driver names it.
     pub drm_file: Option<String>,
+    /// The CUDA device it is (NVIDIA's `EGL_NV_device_cuda`, numbered as the CUDA driver numbers
+    /// devices without `CUDA_VISIBLE_DEVICES`).
+    pub cuda: Option<i64>,
 }
 
 /// An EGL context, current on the thread that made it. Not `Send`: GL contexts are per thread.
@@ -129,6 +136,7 @@ impl Drop for GlContext {
 
 type QueryDevices = unsafe extern "system" fn(egl::Int, *mut *mut c_void, *mut egl::Int) -> egl::Boolean;
 type QueryDeviceString = unsafe extern "system" fn(*mut c_void, egl::Int) -> *const std::ffi::c_char;
+type QueryDeviceAttrib = unsafe extern "system" fn(*mut c_void, egl::Int, *mut egl::Attrib) -> egl::Boolean;
 
 /// The display of the chosen EGL device; the Mesa surfaceless platform when devices cannot be
 /// enumerated.
@@ -138,6 +146,8 @@ fn open_display(lib: &Egl) -> Result<(egl::Display, Option<DeviceInfo>), SimErro
     if let (Some(qd), Some(qs)) = (query_devices, query_string) {
         let qd: QueryDevices = unsafe { std::mem::transmute(qd) };
         let qs: QueryDeviceString = unsafe { std::mem::transmute(qs) };
+        let query_attrib: Option<QueryDeviceAttrib> =
+            lib.get_proc_address("eglQueryDeviceAttribEXT").map(|f| unsafe { std::mem::transmute(f) });
         let mut devices = [std::ptr::null_mut::<c_void>(); 16];
         let mut n: egl::Int = 0;
         if unsafe { qd(devices.len() as egl::Int, devices.as_mut_ptr(), &mut n) } == egl::TRUE && n > 0 {
@@ -148,10 +158,17 @@ fn open_display(lib: &Egl) -> Result<(egl::Display, Option<DeviceInfo>), SimErro
                         (!p.is_null()).then(|| unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned())
                     };
                     let software = text(EXTENSIONS).is_some_and(|e| e.contains("EGL_MESA_device_software"));
-                    DeviceInfo { index, software, drm_file: text(DRM_DEVICE_FILE_EXT) }
+                    let cuda = query_attrib.and_then(|qa| {
+                        let mut value: egl::Attrib = 0;
+                        (unsafe { qa(devices[index], CUDA_DEVICE_NV, &mut value) } == egl::TRUE).then_some(value as i64)
+                    });
+                    DeviceInfo { index, software, drm_file: text(DRM_DEVICE_FILE_EXT), cuda }
                 })
                 .collect();
-            let chosen = choose_device(&infos)?;
+            let wanted = std::env::var("MUJOCO_EGL_DEVICE_ID").ok();
+            let nth = CONTEXTS_MADE.fetch_add(1, Ordering::Relaxed);
+            let models = MODEL_GPUS.lock().expect("model GPUs").clone();
+            let chosen = choose_device(&infos, wanted.as_deref(), nth, &models)?;
             let display =
                 unsafe { lib.get_platform_display(PLATFORM_DEVICE_EXT, devices[chosen.index], &[egl::ATTRIB_NONE]) }
                     .map_err(|e| no_gl(format!("eglGetPlatformDisplay(device {}) failed: {e}", chosen.index)))?;
@@ -164,8 +181,38 @@ fn open_display(lib: &Egl) -> Result<(egl::Display, Option<DeviceInfo>), SimErro
     Ok((display, None))
 }
 
-fn choose_device(infos: &[DeviceInfo]) -> Result<DeviceInfo, SimError> {
-    if let Ok(wanted) = std::env::var("MUJOCO_EGL_DEVICE_ID") {
+/// Contexts this process has made: each new one goes to the next hardware device in turn.
+static CONTEXTS_MADE: AtomicUsize = AtomicUsize::new(0);
+
+/// The CUDA devices this process runs a model on ([`keep_renders_off`]).
+static MODEL_GPUS: Mutex<Vec<i64>> = Mutex::new(Vec::new());
+
+/// Makes the contexts made from now on prefer GPUs other than these CUDA devices (where the
+/// process runs a model), when the machine has such GPUs.
+///
+/// Why: a GL context waits for the GPU's time slices while a model's CUDA kernels run there. On
+/// two H100s with OpenVLA on the first, 64 workers' renders took 1,431 ms each spread over both
+/// GPUs, while 16 processes rendering on an idle GPU took 49 ms a frame pair
+/// (`data/benchmarks/gpu-own-kernels-h100-2026-11-27`).
+pub fn keep_renders_off(cuda_devices: &[usize]) {
+    *MODEL_GPUS.lock().expect("model GPUs") = cuda_devices.iter().map(|&d| d as i64).collect();
+}
+
+/// The device of the `nth` context of the process: `MUJOCO_EGL_DEVICE_ID`'s when set (`wanted`),
+/// else the hardware devices that are none of the `models`' CUDA devices in turn, else all
+/// hardware devices in turn, else the first (software) device.
+///
+/// Why in turn: each NVIDIA context holds ~0.5 GB of its GPU, and a run keeps one per worker. On a
+/// machine with two GPUs, 128 workers all on the first took ~63 GB of it beside a model replica,
+/// which then ran out of memory (`data/benchmarks/gpu-quant-replicas-h100-2026-11-26`); in turn,
+/// each GPU holds its share and renders its share of the frames.
+fn choose_device(
+    infos: &[DeviceInfo],
+    wanted: Option<&str>,
+    nth: usize,
+    models: &[i64],
+) -> Result<DeviceInfo, SimError> {
+    if let Some(wanted) = wanted {
         let index: usize = wanted.trim().parse().map_err(|_| {
             no_gl(format!("MUJOCO_EGL_DEVICE_ID={wanted:?} is not a device index (0..{})", infos.len()))
         })?;
@@ -174,5 +221,53 @@ fn choose_device(infos: &[DeviceInfo]) -> Result<DeviceInfo, SimError> {
             .cloned()
             .ok_or_else(|| no_gl(format!("MUJOCO_EGL_DEVICE_ID={index} but EGL lists {} device(s)", infos.len())));
     }
-    Ok(infos.iter().find(|d| !d.software).or_else(|| infos.first()).cloned().expect("non-empty device list"))
+    let hardware: Vec<&DeviceInfo> = infos.iter().filter(|d| !d.software).collect();
+    let free: Vec<&DeviceInfo> =
+        hardware.iter().copied().filter(|d| d.cuda.is_none_or(|c| !models.contains(&c))).collect();
+    let pool = if free.is_empty() { &hardware } else { &free };
+    Ok(match pool.len() {
+        0 => infos.first().cloned().expect("non-empty device list"),
+        n => pool[nth % n].clone(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn device(index: usize, software: bool) -> DeviceInfo {
+        DeviceInfo { index, software, drm_file: None, cuda: (!software).then_some(index as i64) }
+    }
+
+    #[test]
+    fn contexts_go_to_the_hardware_devices_in_turn_unless_one_is_named() {
+        // two GPUs and Mesa's software device, as glvnd lists them on a GPU machine with Mesa installed
+        let infos = [device(0, false), device(1, false), device(2, true)];
+        let chosen: Vec<usize> = (0..5).map(|nth| choose_device(&infos, None, nth, &[]).unwrap().index).collect();
+        assert_eq!(chosen, [0, 1, 0, 1, 0]);
+        assert_eq!(choose_device(&infos, Some("1"), 0, &[]).unwrap().index, 1);
+        assert_eq!(choose_device(&infos, Some("2"), 7, &[]).unwrap().index, 2);
+        assert!(choose_device(&infos, Some("3"), 0, &[]).is_err());
+        assert!(choose_device(&infos, Some("gpu"), 0, &[]).is_err());
+        // a CPU machine: the software device, every time
+        let cpu = [device(0, true)];
+        assert!((0..3).all(|nth| choose_device(&cpu, None, nth, &[]).unwrap().index == 0));
+        // one GPU: always it, a model on it or not
+        let one = [device(0, true), device(1, false)];
+        assert!((0..3).all(|nth| choose_device(&one, None, nth, &[1]).unwrap().index == 1));
+    }
+
+    #[test]
+    fn contexts_keep_off_the_gpus_that_run_a_model_while_others_are_free() {
+        let infos = [device(0, false), device(1, false), device(2, false)];
+        let chosen = |models: &[i64]| -> Vec<usize> {
+            (0..4).map(|nth| choose_device(&infos, None, nth, models).unwrap().index).collect()
+        };
+        assert_eq!(chosen(&[0]), [1, 2, 1, 2]);
+        assert_eq!(chosen(&[0, 2]), [1, 1, 1, 1]);
+        // a model on every GPU: all of them in turn
+        assert_eq!(chosen(&[0, 1, 2]), [0, 1, 2, 0]);
+        // the variable still decides
+        assert_eq!(choose_device(&infos, Some("0"), 1, &[0]).unwrap().index, 0);
+    }
 }

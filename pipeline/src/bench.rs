@@ -41,6 +41,12 @@ pub struct RenderArgs {
     /// Python of the reference venv; `none` skips the reference measurement.
     #[arg(long, default_value = ".venv/bin/python")]
     python: PathBuf,
+    /// Threads rendering at once in this process, each with its own GL context (as a run's
+    /// workers have): with more than one, each renders `--frames` agentview + wrist pairs of the
+    /// first suite's task 0 at reference quality, and the spread of their ms per pair and the
+    /// pairs/s of all are printed instead (compare with as many processes of one thread).
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
 }
 
 #[derive(clap::Args)]
@@ -135,6 +141,9 @@ fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
     use libero_sim::gl::GlContext;
     use libero_sim::render::{Quality, RenderOptions};
     let set = BundleSet::open(bundles)?;
+    if args.threads > 1 {
+        return render_threads(&set, &args);
+    }
     let gl = std::rc::Rc::new(GlContext::new()?);
     println!(
         "camera pairs/s (agentview + robot0_eye_in_hand, {0}x{0}), {1} pairs, 1 thread, GL vendor {2:?}, device {3:?}",
@@ -182,6 +191,60 @@ fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
             1000.0 / reference,
         );
     }
+    Ok(())
+}
+
+/// `bench render --threads N`: N threads of this process rendering at once, each with its own GL
+/// context (on the EGL devices in turn, as a run's workers'), each its own env of one task.
+fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
+    use libero_sim::gl::GlContext;
+    use libero_sim::render::RenderOptions;
+    let suite = *args.suites.first().context("--suites is empty")?;
+    let bundle = set.load(suite, 0)?;
+    let barrier = std::sync::Barrier::new(args.threads);
+    let results: Vec<Result<(f64, String)>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..args.threads)
+            .map(|_| {
+                let (bundle, barrier) = (&bundle, &barrier);
+                scope.spawn(move || -> Result<(f64, String)> {
+                    let gl = std::rc::Rc::new(GlContext::new()?);
+                    let device = format!("{:?}", gl.device().map(|d| (d.index, d.cuda)));
+                    let mut env = LiberoEnv::new(bundle)?;
+                    env.reset(0, 0)?;
+                    let mut renderer = env.renderer(gl, RenderOptions::default())?;
+                    for cam in crate::media::CAMERAS {
+                        env.render(&mut renderer, cam, args.size, args.size)?; // warm-up
+                    }
+                    // all threads render at the same time
+                    barrier.wait();
+                    let t0 = Instant::now();
+                    for _ in 0..args.frames {
+                        for cam in crate::media::CAMERAS {
+                            env.render(&mut renderer, cam, args.size, args.size)?;
+                        }
+                    }
+                    Ok((1000.0 * t0.elapsed().as_secs_f64() / f64::from(args.frames), device))
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().expect("a render thread panicked")).collect()
+    });
+    let mut ms = Vec::new();
+    let mut devices = std::collections::BTreeMap::<String, usize>::new();
+    for r in results {
+        let (t, d) = r?;
+        ms.push(t);
+        *devices.entry(d).or_default() += 1;
+    }
+    ms.sort_by(f64::total_cmp);
+    let all: f64 = ms.iter().map(|t| 1000.0 / t).sum();
+    let (threads, frames, size, suite) = (args.threads, args.frames, args.size, suite.name());
+    let (min, median, max) = (ms[0], ms[ms.len() / 2], ms[ms.len() - 1]);
+    println!(
+        "{threads} threads of one process, {frames} camera pairs each ({size}x{size}, task 0 of {suite}): ms per pair \
+         min {min:.1}, median {median:.1}, max {max:.1}; {all:.0} pairs/s in all; contexts per (EGL device, CUDA \
+         device): {devices:?}"
+    );
     Ok(())
 }
 

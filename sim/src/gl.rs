@@ -11,8 +11,8 @@
 use crate::SimError;
 use khronos_egl as egl;
 use std::ffi::{CStr, c_void};
-use std::sync::{Mutex, OnceLock};
 use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Mutex, OnceLock};
 
 type Egl = egl::DynamicInstance<egl::EGL1_5>;
 

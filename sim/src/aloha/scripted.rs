@@ -120,8 +120,8 @@ impl ScriptRecorder {
         self.data.reset();
         self.forward_without_actuation();
         self.data.qpos_mut()[..ARM_QPOS].copy_from_slice(&START_ARM_POSE);
-        for arm in 0..2 {
-            self.data.mocap_pos_mut()[arm] = MOCAP_START[arm];
+        for (arm, start) in MOCAP_START.iter().enumerate() {
+            self.data.mocap_pos_mut()[arm] = *start;
             self.data.mocap_quat_mut()[arm] = [1.0, 0.0, 0.0, 0.0];
         }
         self.data.ctrl_mut().copy_from_slice(&closed);
@@ -131,7 +131,7 @@ impl ScriptRecorder {
             let (p, q) = (self.data.mocap_pos()[arm], self.data.mocap_quat()[arm]);
             [p[0], p[1], p[2], q[0], q[1], q[2], q[3]]
         });
-        let plan = waypoints(task, start, &self.data.qpos()[ARM_QPOS..].to_vec());
+        let plan = waypoints(task, start, &self.data.qpos()[ARM_QPOS..]);
 
         // Joint targets: the joints after each step, the grippers as the normalized finger
         // control that step applied (ACT replaces them so the fingers close as scripted,

@@ -244,31 +244,37 @@ impl OpenVlaModel {
     /// cost six operations and an upload per row, during which the GPU, done with the vision
     /// tower, had nothing queued.
     fn prompt_embeds(&self, input_ids: &[Vec<i64>], left_pad: &[i64], projected: &Tensor) -> Tensor {
-        let (b, patches, width) = (input_ids.len() as i64, projected.size()[1], projected.size()[2]);
+        let patches = projected.size()[1];
         let longest = input_ids.iter().map(Vec::len).max().unwrap_or(0) as i64;
         let t = longest + patches;
         // the gather's source, per row: the padded ids' embeddings, then the patches, then a zero
         let (patch_col, zero_col) = (longest, longest + patches);
-        let mut padded = Vec::with_capacity((b * longest) as usize);
-        let mut cols = Vec::with_capacity((b * t) as usize);
-        for (ids, &pad) in input_ids.iter().zip(left_pad) {
-            padded.extend(std::iter::repeat_n(self.bos, pad as usize));
+        let cols: Vec<i64> = left_pad
+            .iter()
+            .flat_map(|&pad| {
+                (0..t).map(move |p| match p {
+                    p if p < pad => zero_col,
+                    p if p == pad => pad,
+                    p if p <= pad + patches => patch_col + (p - pad - 1),
+                    // prompt token `p - pad - patches` after <s>, at that index past the padding
+                    p => p - patches,
+                })
+            })
+            .collect();
+        let source = with_zero(&[&self.embed_left_padded(input_ids), projected]);
+        gather_positions(&source, &cols, t)
+    }
+
+    /// The embeddings `[B, longest, hidden]` of token id rows left-padded with `<s>` to the longest.
+    pub(crate) fn embed_left_padded(&self, rows: &[Vec<i64>]) -> Tensor {
+        let longest = rows.iter().map(Vec::len).max().unwrap_or(0);
+        let mut padded = Vec::with_capacity(rows.len() * longest);
+        for ids in rows {
+            padded.extend(std::iter::repeat_n(self.bos, longest - ids.len()));
             padded.extend_from_slice(ids);
-            cols.extend((0..t).map(|p| match p {
-                p if p < pad => zero_col,
-                p if p == pad => pad,
-                p if p <= pad + patches => patch_col + (p - pad - 1),
-                // prompt token `p - pad - patches` after <s>, at that index past the padding
-                p => p - patches,
-            }));
         }
-        let ids = Tensor::from_slice(&padded).view([b, longest]).to_device(self.device);
-        let embedded = self.llm.embed(&ids);
-        let zero = Tensor::zeros([b, 1, width], (embedded.kind(), self.device));
-        let source = Tensor::cat(&[&embedded, projected, &zero], 1);
-        let rows = Tensor::arange(b, (Kind::Int64, self.device)).view([b, 1]);
-        let cols = Tensor::from_slice(&cols).view([b, t]).to_device(self.device);
-        source.index(&[Some(rows), Some(cols)])
+        let ids = Tensor::from_slice(&padded).view([rows.len() as i64, longest as i64]).to_device(self.device);
+        self.llm.embed(&ids)
     }
 
     /// The fused patch features `[B, patches, vision width]` and their projection `[B, patches, llm]`.
@@ -372,4 +378,23 @@ impl OpenVlaModel {
             .collect();
         Ok(predictions)
     }
+}
+
+/// `parts` (`[B, n, hidden]` each) concatenated along positions, then one zero position: the
+/// source of [`gather_positions`], whose padding and placeholder positions point at the zero.
+pub(crate) fn with_zero(parts: &[&Tensor]) -> Tensor {
+    let first = parts[0];
+    let (b, width) = (first.size()[0], first.size()[2]);
+    let zero = Tensor::zeros([b, 1, width], (first.kind(), first.device()));
+    let mut all: Vec<&Tensor> = parts.to_vec();
+    all.push(&zero);
+    Tensor::cat(&all, 1)
+}
+
+/// `[B, t, hidden]`, row b's position p being `source[b, cols[b·t + p]]`: one gather on the device.
+pub(crate) fn gather_positions(source: &Tensor, cols: &[i64], t: i64) -> Tensor {
+    let (b, device) = (source.size()[0], source.device());
+    let rows = Tensor::arange(b, (Kind::Int64, device)).view([b, 1]);
+    let cols = Tensor::from_slice(cols).view([b, t]).to_device(device);
+    source.index(&[Some(rows), Some(cols)])
 }

@@ -420,7 +420,6 @@ impl OftModel {
         // primary, wrist per row
         let images: Vec<&RgbImage> = queries.iter().flat_map(|q| [q.primary, q.wrist]).collect();
         let pixel_values = self.base.pixel_values_of(&images)?;
-        let device = self.base.device;
         let (normalized, readout) = tch::no_grad(|| {
             // `[2B, patches, hidden]` (primary, wrist per row) → `[B, 2·patches, hidden]`
             let (_, projected) = self.base.vision_features(&pixel_values);
@@ -431,36 +430,38 @@ impl OftModel {
             let lengths: Vec<i64> = input_ids.iter().map(|ids| ids.len() as i64 + READOUT + 1).collect();
             let longest = *lengths.iter().max().unwrap_or(&0);
             let left_pad: Vec<i64> = lengths.iter().map(|l| longest - l).collect();
-            let mut starts = Vec::with_capacity(queries.len());
-            let rows: Vec<Tensor> = input_ids
+            // per row: [padding, <s>, patches, proprio, prompt tokens after <s>, READOUT zeros, </s>],
+            // gathered in one operation from [the left-padded ids (the placeholders among them),
+            // the patches and proprio tokens, a zero]
+            let rows: Vec<Vec<i64>> = input_ids
                 .iter()
-                .zip(&left_pad)
-                .enumerate()
-                .map(|(r, (ids, &pad))| {
-                    let n = ids.len() as i64;
+                .map(|ids| {
                     let mut all = ids.clone();
                     all.extend(std::iter::repeat_n(PLACEHOLDER_TOKEN, READOUT as usize));
                     all.push(STOP_TOKEN);
-                    let emb = self.base.llm.embed(&Tensor::from_slice(&all).view([1, -1]).to_device(device));
-                    let kind = emb.kind();
-                    let padding = Tensor::zeros([1, pad, width], (kind, device));
-                    let zeros = Tensor::zeros([1, READOUT, width], (kind, device));
-                    starts.push(pad + num_patches + (n - 1));
-                    Tensor::cat(
-                        &[
-                            padding,
-                            emb.narrow(1, 0, 1),
-                            projected.narrow(0, r as i64, 1),
-                            proprio_tokens.narrow(0, r as i64, 1),
-                            emb.narrow(1, 1, n - 1),
-                            zeros,
-                            emb.narrow(1, n + READOUT, 1),
-                        ],
-                        1,
-                    )
+                    all
                 })
                 .collect();
-            let hidden = self.base.llm.forward_full(&Tensor::cat(&rows, 0), &left_pad);
+            let t = longest + num_patches;
+            let (patch_col, zero_col) = (longest, longest + num_patches);
+            let mut starts = Vec::with_capacity(queries.len());
+            let mut cols = Vec::with_capacity((b * t) as usize);
+            for (ids, &pad) in input_ids.iter().zip(&left_pad) {
+                let n = ids.len() as i64;
+                let readout = pad + num_patches + n;
+                starts.push(readout - 1);
+                cols.extend((0..t).map(|p| match p {
+                    p if p < pad => zero_col,
+                    p if p == pad => pad,
+                    p if p <= pad + num_patches => patch_col + (p - pad - 1),
+                    p if (readout..readout + READOUT).contains(&p) => zero_col,
+                    // a prompt token after <s>, or </s>: that index past the padding
+                    p => p - num_patches,
+                }));
+            }
+            let source = super::with_zero(&[&self.base.embed_left_padded(&rows), &projected, &proprio_tokens]);
+            let embeds = super::gather_positions(&source, &cols, t);
+            let hidden = self.base.llm.forward_full(&embeds, &left_pad);
             let readout: Vec<Tensor> =
                 starts.iter().enumerate().map(|(r, &s)| hidden.get(r as i64).narrow(0, s, READOUT)).collect();
             let readout = Tensor::stack(&readout, 0);

@@ -735,9 +735,10 @@ fn main() {
                 "tflop_per_call": flops / 1e12, "tflop_per_s": tflops, "fraction_of_peak": tflops / PEAK_TFLOPS,
             });
             println!(
-                "  B={b:>3}: {:>8.1} ms per call (p90 {:.1}), {:>7.2} ms per query, {:>7.1} actions/s ({actions_per_query} per \
+                "  B={b:>3}: {:>8.1} ms per call (min {:.1}, p90 {:.1}), {:>7.2} ms per query, {:>7.1} actions/s ({actions_per_query} per \
                  query); {:.1} GFLOP per call, {tflops:.1} TFLOP/s = {:.1}% of {PEAK_TFLOPS}",
                 median * 1e3,
+                times[0] * 1e3,
                 percentile(&times, 0.9) * 1e3,
                 median * 1e3 / b as f64,
                 actions / median,

@@ -57,7 +57,7 @@ pub struct Fusion {
     /// transformers' operations, on which the parity tests compare.
     pub norm: bool,
     /// One GEMM for q, k and v, and the rotary embedding once over the queries and keys, where a
-    /// forward has at most [`FUSED_PROJECTION_MAX_ROWS`] rows (positions × sequences): the decode
+    /// forward has at most `FUSED_PROJECTION_MAX_ROWS` (8) rows (positions × sequences): the decode
     /// steps of a small batch, bound by launches. Larger forwards keep three GEMMs on the row
     /// blocks: fused in every forward, OpenVLA-7B took 892 ms a call at B = 64 instead of 776, and
     /// fused in the decode steps only, still 818 instead of 707
@@ -72,7 +72,7 @@ pub struct Fusion {
     /// (one rounding fewer than transformers').
     pub rotary_fma: bool,
     /// Keys and values written in place into buffers preallocated for the whole generation
-    /// ([`Llama::new_cache_with_capacity`]), the attention reading a view of the filled part,
+    /// (`Llama::new_cache_with_capacity`), the attention reading a view of the filled part,
     /// instead of transformers' `torch.cat` of the cache at every decode step, which copies every
     /// layer's keys and values (B = 64: 0.33 ms a layer and step with the copy, 0.15 without).
     /// The same values in the same order: a layout change, not an arithmetic one.
@@ -127,7 +127,7 @@ impl Fusion {
 }
 
 impl std::fmt::Display for Fusion {
-    /// `none`, `all`, or the parts on joined by `+` (`norm+qkv`), as [`Fusion::from_str`] reads them.
+    /// `none`, `all`, or the parts on joined by `+` (`norm+qkv`), as its `FromStr` reads them.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let mut copy = *self;
         let parts = copy.parts();

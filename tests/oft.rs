@@ -99,3 +99,38 @@ fn batched_oft_forwards_give_each_episode_its_unbatched_actions() {
     assert!(first <= 1e-4, "batched actions of the first chunk differ by {first}");
     assert!(later <= 1e-2, "batched actions of the second chunk differ by {later}");
 }
+
+/// Workers rendering through one shared GL thread (`LIBERO_GL_THREADS=shared`, meant for GPUs:
+/// `libero_sim::gl_thread`) store the steps of workers with a GL thread each: 4 workers on 4
+/// episodes of two tasks, every action equal (the frames are equal bit for bit and the model
+/// is deterministic here). An unknown value stops the run before any episode, naming the values.
+#[test]
+fn workers_sharing_one_gl_thread_store_the_steps_of_a_thread_each() {
+    let d = test_dir("oft", "gl-threads");
+    let ckpt = tiny_checkpoint(&d);
+    let specs = d.join("specs.parquet");
+    let s = specs.to_str().unwrap();
+    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
+    let policy = format!("oft:{}?unnorm=libero_spatial_no_noops", ckpt.display());
+    let run = |name: &str, threads: &str| {
+        let out = d.join(name);
+        let args = ["run", s, "--out", out.to_str().unwrap(), "--policy", &policy, "--max-steps", "9", "--jobs", "4"];
+        Command::new(libero_e2e::pipeline_bin())
+            .args(args)
+            .env("LIBERO_GL_THREADS", threads)
+            .current_dir(repo_root())
+            .output()
+            .unwrap()
+    };
+    let refused = run("bogus", "one");
+    let text = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && text.contains("LIBERO_GL_THREADS") && text.contains("shared"), "{text}");
+    assert!(!d.join("bogus").join("episodes").exists(), "an episode started");
+    ok(run("per-worker", "per-worker"));
+    ok(run("shared", "shared"));
+    let query = "SELECT episode_key, policy_step, action FROM steps WHERE policy_step IS NOT NULL \
+                 ORDER BY episode_key, policy_step";
+    let (own, shared) = (sql_rows(&d.join("per-worker"), query, &[]), sql_rows(&d.join("shared"), query, &[]));
+    assert_eq!(own.len(), 4 * 9);
+    assert_eq!(own, shared, "a shared GL thread changed what the policy saw");
+}

@@ -139,3 +139,57 @@ fn an_unknown_camera_lists_the_scene_cameras() {
     let err = env.render(&mut renderer, "agentview", 4096, 4096).unwrap_err().to_string();
     assert!(err.contains("max_width"), "{err}");
 }
+
+/// Several workers rendering through one shared GL thread (as a run's workers do on a GPU,
+/// `libero_sim::gl_thread`) get, bit for bit, the frames each gets on a GL context of its own:
+/// three threads, three tasks' scenes uploaded to the one context, renders interleaved.
+#[test]
+fn workers_sharing_one_gl_thread_get_the_frames_of_a_context_each() {
+    use libero_sim::gl_thread::{GlThread, OnGlThread};
+    let set = bundles();
+    let shared = GlThread::start(libero_sim::gl::next_device().unwrap().as_ref()).unwrap();
+    let frames: Vec<(Vec<Vec<u8>>, Vec<Vec<u8>>)> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..3u32)
+            .map(|task| {
+                let (set, shared) = (&set, shared.clone());
+                scope.spawn(move || {
+                    let bundle = set.load("libero_goal".parse().unwrap(), task).unwrap();
+                    let mut env = LiberoEnv::new(&bundle).unwrap();
+                    env.reset(task as usize, 0).unwrap();
+                    let options = RenderOptions { max_width: 128, max_height: 128, ..Default::default() };
+                    let pair = |env: &mut LiberoEnv, r: &mut libero_sim::render::SceneRenderer| {
+                        ["agentview", "robot0_eye_in_hand"].map(|c| env.render(r, c, 128, 128).unwrap().rgb).to_vec()
+                    };
+                    let mut through_shared = Vec::new();
+                    // SAFETY: env and renderer are used on the GL thread while this thread waits.
+                    let mut renderer =
+                        unsafe { OnGlThread::make(shared, |gl| env.renderer(gl.clone(), options)) }.unwrap();
+                    for _ in 0..3 {
+                        through_shared.extend(unsafe { renderer.with(|r| pair(&mut env, r)) });
+                        env.step([0.2, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]).unwrap();
+                    }
+                    drop(renderer);
+                    env.reset(task as usize, 0).unwrap();
+                    let gl = Rc::new(GlContext::new().unwrap());
+                    let mut renderer = env.renderer(gl, options).unwrap();
+                    let mut own = Vec::new();
+                    for _ in 0..3 {
+                        own.extend(pair(&mut env, &mut renderer));
+                        env.step([0.2, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]).unwrap();
+                    }
+                    (through_shared, own)
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    for (task, (through_shared, own)) in frames.iter().enumerate() {
+        assert_eq!(through_shared.len(), 6);
+        for (i, (a, b)) in through_shared.iter().zip(own).enumerate() {
+            let n = a.iter().zip(b).filter(|(x, y)| x != y).count();
+            assert!(n == 0, "task {task}, frame {i}: {n} of {} bytes differ from a context's own frame", a.len());
+        }
+    }
+    // and the scenes differ: a frame of one task is not another's
+    assert!(frames[0].0[0] != frames[1].0[0]);
+}

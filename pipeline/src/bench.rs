@@ -41,12 +41,17 @@ pub struct RenderArgs {
     /// Python of the reference venv; `none` skips the reference measurement.
     #[arg(long, default_value = ".venv/bin/python")]
     python: PathBuf,
-    /// Threads rendering at once in this process, each with its own GL context (as a run's
-    /// workers have): with more than one, each renders `--frames` agentview + wrist pairs of the
-    /// first suite's task 0 at reference quality, and the spread of their ms per pair and the
-    /// pairs/s of all are printed instead (compare with as many processes of one thread).
+    /// Threads rendering at once in this process, as a run's workers do (through their GPU's
+    /// GL thread, `libero_sim::gl_thread`): with more than one, each renders `--frames`
+    /// agentview + wrist pairs of the first suite's task 0 at reference quality, and the spread
+    /// of their ms per pair and the pairs/s of all are printed instead (compare with as many
+    /// processes of one thread).
     #[arg(long, default_value_t = 1)]
     threads: usize,
+    /// With `--threads`: each thread makes a GL context of its own and renders on it (how runs
+    /// rendered before the GL threads), to compare the two.
+    #[arg(long)]
+    context_per_thread: bool,
 }
 
 #[derive(clap::Args)]
@@ -153,16 +158,22 @@ fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
         gl.device()
     );
     println!(
-        "{:<15} {:>14} {:>14} {:>14} {:>10} {:>12}",
-        "suite", "rust reference", "rust preview", "python ref", "rust/py", "ms per pair"
+        "{:<15} {:>14} {:>14} {:>14} {:>10} {:>12} {:>14}",
+        "suite", "rust reference", "rust preview", "python ref", "rust/py", "ms per pair", "setup ms"
     );
     for suite in &args.suites {
         let bundle = set.load(*suite, 0)?;
         let mut env = LiberoEnv::new(&bundle)?;
         env.reset(0, 0)?;
+        // the upload of the scene (meshes, textures) a new renderer makes, the reference one's
+        let mut setup_ms = 0.0;
         let mut rate = |quality| -> Result<f64> {
             let options = RenderOptions { quality, ..Default::default() };
+            let t0 = Instant::now();
             let mut renderer = env.renderer(gl.clone(), options)?;
+            if quality == Quality::Reference {
+                setup_ms = 1000.0 * t0.elapsed().as_secs_f64();
+            }
             for cam in crate::media::CAMERAS {
                 env.render(&mut renderer, cam, args.size, args.size)?; // warm-up
             }
@@ -182,13 +193,14 @@ fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
             Some(python_render_rate(&args.python, *suite, args.frames, args.size)?)
         };
         println!(
-            "{:<15} {:>14.1} {:>14.1} {:>14} {:>10} {:>12.1}",
+            "{:<15} {:>14.1} {:>14.1} {:>14} {:>10} {:>12.1} {:>14.1}",
             suite.name(),
             reference,
             preview,
             py.map_or("-".into(), |p| format!("{p:.1}")),
             py.map_or("-".into(), |p| format!("{:.2}x", reference / p)),
             1000.0 / reference,
+            setup_ms,
         );
     }
     Ok(())
@@ -198,32 +210,49 @@ fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
 /// context (on the EGL devices in turn, as a run's workers'), each its own env of one task.
 fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     use libero_sim::gl::GlContext;
-    use libero_sim::render::RenderOptions;
+    use libero_sim::gl_thread::{GlThread, OnGlThread};
+    use libero_sim::render::{RenderOptions, SceneRenderer};
     let suite = *args.suites.first().context("--suites is empty")?;
     let bundle = set.load(suite, 0)?;
     let barrier = std::sync::Barrier::new(args.threads);
+    let (frames, size) = (args.frames, args.size);
+    // One thread's measurement: ms per camera pair and the EGL (device, CUDA device) it rendered on.
+    let measure = |env: &mut LiberoEnv, render: &mut dyn FnMut(&mut LiberoEnv) -> Result<()>| -> Result<f64> {
+        render(env)?; // warm-up
+        barrier.wait(); // all threads render at the same time
+        let t0 = Instant::now();
+        for _ in 0..frames {
+            render(env)?;
+        }
+        Ok(1000.0 * t0.elapsed().as_secs_f64() / f64::from(frames))
+    };
+    let pair = |env: &mut LiberoEnv, renderer: &mut SceneRenderer| -> Result<()> {
+        for cam in crate::media::CAMERAS {
+            env.render(renderer, cam, size, size)?;
+        }
+        Ok(())
+    };
     let results: Vec<Result<(f64, String)>> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..args.threads)
             .map(|_| {
-                let (bundle, barrier) = (&bundle, &barrier);
+                let (bundle, measure, pair) = (&bundle, &measure, &pair);
                 scope.spawn(move || -> Result<(f64, String)> {
-                    let gl = std::rc::Rc::new(GlContext::new()?);
-                    let device = format!("{:?}", gl.device().map(|d| (d.index, d.cuda)));
                     let mut env = LiberoEnv::new(bundle)?;
                     env.reset(0, 0)?;
-                    let mut renderer = env.renderer(gl, RenderOptions::default())?;
-                    for cam in crate::media::CAMERAS {
-                        env.render(&mut renderer, cam, args.size, args.size)?; // warm-up
+                    if args.context_per_thread {
+                        let gl = std::rc::Rc::new(GlContext::new()?);
+                        let device = format!("{:?}", gl.device().map(|d| (d.index, d.cuda)));
+                        let mut renderer = env.renderer(gl, RenderOptions::default())?;
+                        let ms = measure(&mut env, &mut |env| pair(env, &mut renderer))?;
+                        return Ok((ms, device));
                     }
-                    // all threads render at the same time
-                    barrier.wait();
-                    let t0 = Instant::now();
-                    for _ in 0..args.frames {
-                        for cam in crate::media::CAMERAS {
-                            env.render(&mut renderer, cam, args.size, args.size)?;
-                        }
-                    }
-                    Ok((1000.0 * t0.elapsed().as_secs_f64() / f64::from(args.frames), device))
+                    let thread = GlThread::for_worker()?;
+                    let device = format!("{:?}", thread.device().map(|d| (d.index, d.cuda)));
+                    // SAFETY: the env and the renderer are used on the GL thread while this one waits.
+                    let mut renderer =
+                        unsafe { OnGlThread::make(thread, |gl| env.renderer(gl.clone(), RenderOptions::default()))? };
+                    let ms = measure(&mut env, &mut |env| unsafe { renderer.with(|r| pair(env, r)) })?;
+                    Ok((ms, device))
                 })
             })
             .collect();
@@ -238,12 +267,13 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     }
     ms.sort_by(f64::total_cmp);
     let all: f64 = ms.iter().map(|t| 1000.0 / t).sum();
-    let (threads, frames, size, suite) = (args.threads, args.frames, args.size, suite.name());
+    let (threads, suite) = (args.threads, suite.name());
     let (min, median, max) = (ms[0], ms[ms.len() / 2], ms[ms.len() - 1]);
+    let how = if args.context_per_thread { "a GL context each" } else { "through their GPU's GL thread" };
     println!(
-        "{threads} threads of one process, {frames} camera pairs each ({size}x{size}, task 0 of {suite}): ms per pair \
-         min {min:.1}, median {median:.1}, max {max:.1}; {all:.0} pairs/s in all; contexts per (EGL device, CUDA \
-         device): {devices:?}"
+        "{threads} threads of one process ({how}), {frames} camera pairs each ({size}x{size}, task 0 of {suite}): \
+         ms per pair min {min:.1}, median {median:.1}, max {max:.1}; {all:.0} pairs/s in all; threads per (EGL \
+         device, CUDA device): {devices:?}"
     );
     Ok(())
 }

@@ -67,10 +67,19 @@ pub struct GlContext {
 }
 
 impl GlContext {
-    /// Make a context and make it current on this thread.
+    /// Make a context and make it current on this thread, on the device the process's next
+    /// context takes ([`next_device`]).
     pub fn new() -> Result<Self, SimError> {
+        let device = next_device()?;
+        Self::on(device.as_ref())
+    }
+
+    /// Make a context on `device` (`None`: Mesa's surfaceless platform, for machines whose EGL
+    /// cannot list devices) and make it current on this thread.
+    pub fn on(device: Option<&DeviceInfo>) -> Result<Self, SimError> {
         let lib = library()?;
-        let (display, device) = open_display(lib)?;
+        let display = open_display(lib, device)?;
+        let device = device.cloned();
         lib.initialize(display).map_err(|e| no_gl(format!("eglInitialize failed: {e}")))?;
         lib.bind_api(egl::OPENGL_API).map_err(|e| no_gl(format!("eglBindAPI(OpenGL) failed: {e}")))?;
         let attributes = [
@@ -138,47 +147,55 @@ type QueryDevices = unsafe extern "system" fn(egl::Int, *mut *mut c_void, *mut e
 type QueryDeviceString = unsafe extern "system" fn(*mut c_void, egl::Int) -> *const std::ffi::c_char;
 type QueryDeviceAttrib = unsafe extern "system" fn(*mut c_void, egl::Int, *mut egl::Attrib) -> egl::Boolean;
 
-/// The display of the chosen EGL device; the Mesa surfaceless platform when devices cannot be
-/// enumerated.
-fn open_display(lib: &Egl) -> Result<(egl::Display, Option<DeviceInfo>), SimError> {
-    let query_devices = lib.get_proc_address("eglQueryDevicesEXT");
-    let query_string = lib.get_proc_address("eglQueryDeviceStringEXT");
-    if let (Some(qd), Some(qs)) = (query_devices, query_string) {
-        let qd: QueryDevices = unsafe { std::mem::transmute(qd) };
-        let qs: QueryDeviceString = unsafe { std::mem::transmute(qs) };
-        let query_attrib: Option<QueryDeviceAttrib> =
-            lib.get_proc_address("eglQueryDeviceAttribEXT").map(|f| unsafe { std::mem::transmute(f) });
-        let mut devices = [std::ptr::null_mut::<c_void>(); 16];
-        let mut n: egl::Int = 0;
-        if unsafe { qd(devices.len() as egl::Int, devices.as_mut_ptr(), &mut n) } == egl::TRUE && n > 0 {
-            let infos: Vec<DeviceInfo> = (0..n as usize)
-                .map(|index| {
-                    let text = |what| {
-                        let p = unsafe { qs(devices[index], what) };
-                        (!p.is_null()).then(|| unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned())
-                    };
-                    let software = text(EXTENSIONS).is_some_and(|e| e.contains("EGL_MESA_device_software"));
-                    let cuda = query_attrib.and_then(|qa| {
-                        let mut value: egl::Attrib = 0;
-                        (unsafe { qa(devices[index], CUDA_DEVICE_NV, &mut value) } == egl::TRUE).then_some(value as i64)
-                    });
-                    DeviceInfo { index, software, drm_file: text(DRM_DEVICE_FILE_EXT), cuda }
-                })
-                .collect();
-            let wanted = std::env::var("MUJOCO_EGL_DEVICE_ID").ok();
-            let nth = CONTEXTS_MADE.fetch_add(1, Ordering::Relaxed);
-            let models = MODEL_GPUS.lock().expect("model GPUs").clone();
-            let chosen = choose_device(&infos, wanted.as_deref(), nth, &models)?;
-            let display =
-                unsafe { lib.get_platform_display(PLATFORM_DEVICE_EXT, devices[chosen.index], &[egl::ATTRIB_NONE]) }
-                    .map_err(|e| no_gl(format!("eglGetPlatformDisplay(device {}) failed: {e}", chosen.index)))?;
-            return Ok((display, Some(chosen)));
-        }
+/// The EGL devices and what they are, with their handles; `None` when EGL cannot list them.
+fn egl_devices(lib: &Egl) -> Option<Vec<(*mut c_void, DeviceInfo)>> {
+    let qd: QueryDevices = unsafe { std::mem::transmute(lib.get_proc_address("eglQueryDevicesEXT")?) };
+    let qs: QueryDeviceString = unsafe { std::mem::transmute(lib.get_proc_address("eglQueryDeviceStringEXT")?) };
+    let query_attrib: Option<QueryDeviceAttrib> =
+        lib.get_proc_address("eglQueryDeviceAttribEXT").map(|f| unsafe { std::mem::transmute(f) });
+    let mut devices = [std::ptr::null_mut::<c_void>(); 16];
+    let mut n: egl::Int = 0;
+    if unsafe { qd(devices.len() as egl::Int, devices.as_mut_ptr(), &mut n) } != egl::TRUE || n <= 0 {
+        return None;
     }
-    let display =
-        unsafe { lib.get_platform_display(PLATFORM_SURFACELESS_MESA, egl::DEFAULT_DISPLAY, &[egl::ATTRIB_NONE]) }
-            .map_err(|e| no_gl(format!("no EGL device and no surfaceless platform ({e})")))?;
-    Ok((display, None))
+    let info = |index: usize| {
+        let text = |what| {
+            let p = unsafe { qs(devices[index], what) };
+            (!p.is_null()).then(|| unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned())
+        };
+        let software = text(EXTENSIONS).is_some_and(|e| e.contains("EGL_MESA_device_software"));
+        let cuda = query_attrib.and_then(|qa| {
+            let mut value: egl::Attrib = 0;
+            (unsafe { qa(devices[index], CUDA_DEVICE_NV, &mut value) } == egl::TRUE).then_some(value as i64)
+        });
+        DeviceInfo { index, software, drm_file: text(DRM_DEVICE_FILE_EXT), cuda }
+    };
+    Some((0..n as usize).map(|index| (devices[index], info(index))).collect())
+}
+
+/// The device the process's next context (or [`crate::gl_thread::GlThread`]) takes: see
+/// [`choose_device`]. `None` where EGL cannot list devices (Mesa's surfaceless platform then).
+pub fn next_device() -> Result<Option<DeviceInfo>, SimError> {
+    let Some(devices) = egl_devices(library()?) else { return Ok(None) };
+    let infos: Vec<DeviceInfo> = devices.into_iter().map(|(_, info)| info).collect();
+    let wanted = std::env::var("MUJOCO_EGL_DEVICE_ID").ok();
+    let nth = CONTEXTS_MADE.fetch_add(1, Ordering::Relaxed);
+    let models = MODEL_GPUS.lock().expect("model GPUs").clone();
+    choose_device(&infos, wanted.as_deref(), nth, &models).map(Some)
+}
+
+/// The display of `device`; Mesa's surfaceless platform for `None`.
+fn open_display(lib: &Egl, device: Option<&DeviceInfo>) -> Result<egl::Display, SimError> {
+    if let Some(device) = device {
+        let handle = egl_devices(lib)
+            .and_then(|all| all.into_iter().find(|(_, d)| d.index == device.index))
+            .map(|(handle, _)| handle)
+            .ok_or_else(|| no_gl(format!("EGL no longer lists device {}", device.index)))?;
+        return unsafe { lib.get_platform_display(PLATFORM_DEVICE_EXT, handle, &[egl::ATTRIB_NONE]) }
+            .map_err(|e| no_gl(format!("eglGetPlatformDisplay(device {}) failed: {e}", device.index)));
+    }
+    unsafe { lib.get_platform_display(PLATFORM_SURFACELESS_MESA, egl::DEFAULT_DISPLAY, &[egl::ATTRIB_NONE]) }
+        .map_err(|e| no_gl(format!("no EGL device and no surfaceless platform ({e})")))
 }
 
 /// Contexts this process has made: each new one goes to the next hardware device in turn.

@@ -14,6 +14,7 @@
 //! - [`viewpoint`]: LIBERO-Plus camera viewpoints (the `agentview` pose of a view variant);
 //! - [`gl`] and [`render`]: headless EGL contexts and camera frames rendered as the reference renders
 //!   them (orientation conventions, the published stack's look, a clearly named preview mode);
+//!   [`gl_thread`]: one context per GPU on a thread of its own, rendering for every worker;
 //! - [`aloha`]: a second benchmark, ALOHA-sim (gym-aloha's bimanual tasks), on the same MuJoCo and
 //!   renderer.
 //!
@@ -37,6 +38,7 @@ pub mod dark_noise;
 pub mod env;
 mod error;
 pub mod gl;
+pub mod gl_thread;
 pub mod gripper;
 pub mod image_noise;
 pub mod npy;

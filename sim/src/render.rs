@@ -329,6 +329,7 @@ impl SceneRenderer {
         self.cam.type_ = c::mjtCamera::mjCAMERA_FIXED as i32;
         self.cam.fixedcamid = camera as i32;
         unsafe {
+            self.bind_buffer();
             c::mjv_updateScene(
                 model,
                 data,
@@ -350,6 +351,7 @@ impl SceneRenderer {
         let text = CString::new(text.replace('\0', " ")).expect("no NUL left");
         let empty = CString::default();
         unsafe {
+            self.bind_buffer();
             c::mjr_rectangle(rect.ffi(), background[0], background[1], background[2], 1.0);
             c::mjr_overlay(
                 c::mjtFont::mjFONT_NORMAL as i32,
@@ -363,10 +365,22 @@ impl SceneRenderer {
         Ok(())
     }
 
+    /// Make this renderer's offscreen buffer the one GL draws into and reads from.
+    ///
+    /// Why every time: the GL binding belongs to the GL context, not to MuJoCo's render context.
+    /// Where several renderers share one GL context (the GL threads of `crate::gl_thread`, one
+    /// per GPU for all workers), a renderer made or used in between leaves its own buffer bound,
+    /// and a draw without this went into that renderer's buffer: the frame read back was stale
+    /// (`tests/render.rs`, three workers on one GL thread, agentview frames differing entirely).
+    fn bind_buffer(&mut self) {
+        unsafe { c::mjr_setBuffer(c::mjtFramebuffer::mjFB_OFFSCREEN as i32, &mut *self.con) };
+    }
+
     /// Read `rect` of the offscreen buffer back, in the reference orientation.
     pub fn read(&mut self, rect: Rect) -> Result<Frame, SimError> {
         self.check_rect(rect)?;
         let mut rgb = vec![0u8; rect.width as usize * rect.height as usize * 3];
+        self.bind_buffer();
         unsafe { c::mjr_readPixels(rgb.as_mut_ptr(), std::ptr::null_mut(), rect.ffi(), &*self.con) };
         Ok(Frame { width: rect.width, height: rect.height, rgb, orientation: Orientation::Reference })
     }

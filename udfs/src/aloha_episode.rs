@@ -17,6 +17,7 @@ use libero_policies::{CameraImage, PolicyError};
 use libero_schema::tables;
 use libero_sim::SimError;
 use libero_sim::aloha::{AlohaBundle, AlohaEnv, AlohaTask, MAX_REWARD, ScriptRecorder};
+use libero_sim::gl_thread::OnGlThread;
 use libero_sim::render::SceneRenderer;
 use std::sync::Arc;
 use std::time::Instant;
@@ -27,7 +28,7 @@ pub struct AlohaWorker {
     pub task: AlohaTask,
     env: AlohaEnv,
     recorder: Option<ScriptRecorder>,
-    renderer: Option<SceneRenderer>,
+    renderer: Option<OnGlThread<SceneRenderer>>,
 }
 
 impl AlohaWorker {
@@ -37,10 +38,15 @@ impl AlohaWorker {
 
     /// `obs["pixels"]["top"]` of the current state (480 × 640, upright), as a policy sees it.
     fn render_top(&mut self) -> Result<CameraImage, SimError> {
+        let env = &mut self.env;
         if self.renderer.is_none() {
-            self.renderer = Some(self.env.renderer(crate::policy_cameras::worker_gl()?)?);
+            let thread = crate::policy_cameras::worker_gl()?;
+            // SAFETY: the env (MuJoCo model and data) is used on the GL thread while this one waits.
+            self.renderer = Some(unsafe { OnGlThread::make(thread, |gl| env.renderer(gl.clone()))? });
         }
-        let frame = self.env.render_top(self.renderer.as_mut().expect("made above"))?;
+        let renderer = self.renderer.as_mut().expect("made above");
+        // SAFETY: as above; the renderer was made on that thread.
+        let frame = unsafe { renderer.with(|renderer| env.render_top(renderer)) }?;
         Ok(CameraImage { width: frame.width, height: frame.height, rgb: frame.rgb })
     }
 }

@@ -9,39 +9,40 @@
 use libero_policies::{CameraImage, CameraImages};
 use libero_sim::SimError;
 use libero_sim::env::LiberoEnv;
-use libero_sim::gl::GlContext;
+use libero_sim::gl_thread::{GlThread, OnGlThread};
 use libero_sim::render::{Look, Quality, RenderOptions, SceneRenderer};
-use std::rc::Rc;
+use std::sync::Arc;
 
 /// The reference env's camera names: the third-person view and the wrist view.
 pub const AGENTVIEW: &str = "agentview";
 pub const WRIST: &str = "robot0_eye_in_hand";
 
 thread_local! {
-    /// One headless GL context per rollout worker thread, made on first use.
-    static GL: std::cell::OnceCell<Result<Rc<GlContext>, String>> = const { std::cell::OnceCell::new() };
+    /// The GL thread each rollout worker renders on, chosen on first use.
+    static GL: std::cell::OnceCell<Result<Arc<GlThread>, String>> = const { std::cell::OnceCell::new() };
 }
 
-/// The rollout worker thread's GL context (made on first use, shared by LIBERO's and ALOHA-sim's
-/// policy cameras).
-pub fn worker_gl() -> Result<Rc<GlContext>, SimError> {
-    GL.with(|cell| cell.get_or_init(|| GlContext::new().map(Rc::new).map_err(|e| e.to_string())).clone())
+/// The rollout worker's GL thread (chosen on first use, shared by LIBERO's and ALOHA-sim's policy
+/// cameras): its GPU's one GL thread, or a thread of its own on a CPU machine
+/// ([`GlThread::for_worker`]).
+pub fn worker_gl() -> Result<Arc<GlThread>, SimError> {
+    GL.with(|cell| cell.get_or_init(|| GlThread::for_worker().map_err(|e| e.to_string())).clone())
         .map_err(SimError::Other)
 }
 
 /// A renderer for one episode's env, reading both cameras on request.
 pub struct PolicyCameras {
-    renderer: SceneRenderer,
+    renderer: OnGlThread<SceneRenderer>,
     size: u32,
 }
 
 impl PolicyCameras {
     /// Set up rendering of `env`'s scene at `size`×`size` (uploads its meshes and textures once).
     pub fn new(env: &mut LiberoEnv, size: u32) -> Result<Self, SimError> {
-        let gl = worker_gl()?;
         let options =
             RenderOptions { look: Look::Mujoco323, quality: Quality::Reference, max_width: size, max_height: size };
-        let renderer = env.renderer(gl, options)?;
+        // SAFETY: the env (MuJoCo model and data) is used on the GL thread while this one waits.
+        let renderer = unsafe { OnGlThread::make(worker_gl()?, |gl| env.renderer(gl.clone(), options))? };
         Ok(PolicyCameras { renderer, size })
     }
 
@@ -51,13 +52,20 @@ impl PolicyCameras {
 
     /// The cameras' views of the env's current state: agentview, and the wrist camera when
     /// `wrist` (else an empty image).
+    /// Both cameras are drawn in one call to the GL thread.
     pub fn capture(&mut self, env: &mut LiberoEnv, wrist: bool) -> Result<CameraImages, SimError> {
-        let mut grab = |camera: &str| -> Result<CameraImage, SimError> {
-            let f = env.render(&mut self.renderer, camera, self.size, self.size)?;
-            Ok(CameraImage { width: f.width, height: f.height, rgb: f.rgb })
-        };
-        let agentview = grab(AGENTVIEW)?;
-        let wrist = if wrist { grab(WRIST)? } else { CameraImage::default() };
-        Ok(CameraImages { agentview, wrist })
+        let size = self.size;
+        // SAFETY: the env and the renderer are used on the GL thread while this one waits.
+        unsafe {
+            self.renderer.with(|renderer| {
+                let mut grab = |camera: &str| -> Result<CameraImage, SimError> {
+                    let f = env.render(renderer, camera, size, size)?;
+                    Ok(CameraImage { width: f.width, height: f.height, rgb: f.rgb })
+                };
+                let agentview = grab(AGENTVIEW)?;
+                let wrist = if wrist { grab(WRIST)? } else { CameraImage::default() };
+                Ok(CameraImages { agentview, wrist })
+            })
+        }
     }
 }

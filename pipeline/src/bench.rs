@@ -41,15 +41,16 @@ pub struct RenderArgs {
     /// Python of the reference venv; `none` skips the reference measurement.
     #[arg(long, default_value = ".venv/bin/python")]
     python: PathBuf,
-    /// Threads rendering at once in this process, as a run's workers do (through their GPU's
-    /// GL thread, `libero_sim::gl_thread`): with more than one, each renders `--frames`
+    /// Threads rendering at once in this process, as a run's workers do (through GL threads,
+    /// `libero_sim::gl_thread`: one each, or the GPU's one with `LIBERO_GL_THREADS=shared`):
+    /// with more than one, each renders `--frames`
     /// agentview + wrist pairs of the first suite's task 0 at reference quality, and the spread
     /// of their ms per pair and the pairs/s of all are printed instead (compare with as many
     /// processes of one thread).
     #[arg(long, default_value_t = 1)]
     threads: usize,
-    /// With `--threads`: each thread makes a GL context of its own and renders on it (how runs
-    /// rendered before the GL threads), to compare the two.
+    /// With `--threads`: each thread makes a GL context of its own and renders on it itself
+    /// (how runs rendered before the GL threads), to compare.
     #[arg(long)]
     context_per_thread: bool,
 }
@@ -269,7 +270,13 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     let all: f64 = ms.iter().map(|t| 1000.0 / t).sum();
     let (threads, suite) = (args.threads, suite.name());
     let (min, median, max) = (ms[0], ms[ms.len() / 2], ms[ms.len() - 1]);
-    let how = if args.context_per_thread { "a GL context each" } else { "through their GPU's GL thread" };
+    let how = if args.context_per_thread {
+        "a GL context each, on the thread itself"
+    } else if libero_sim::gl_thread::shared_gl_threads()? {
+        "through the GPU's one shared GL thread"
+    } else {
+        "a GL thread each"
+    };
     println!(
         "{threads} threads of one process ({how}), {frames} camera pairs each ({size}x{size}, task 0 of {suite}): \
          ms per pair min {min:.1}, median {median:.1}, max {max:.1}; {all:.0} pairs/s in all; threads per (EGL \

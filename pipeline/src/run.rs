@@ -317,7 +317,6 @@ fn check_noise_sizes(args: &Args, specs: &specs::Specs) -> Result<()> {
 
 /// Run the pending episodes through the rollout UDF, then record what this invocation did.
 #[allow(clippy::too_many_arguments)]
-#[allow(clippy::too_many_arguments)]
 async fn run_pending(
     args: &Args,
     set: &Arc<BundleSet>,

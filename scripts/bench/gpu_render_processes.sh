@@ -3,7 +3,10 @@
 # threads of one process (N contexts, as a run's N workers have) against N processes of one thread
 # each, for each N; every context on the GPU that MUJOCO_EGL_DEVICE_ID names (default 0). A run's
 # renders took ~45 frames/s in all on two H100s wherever its contexts sat, while 16 processes got
-# ~330 pairs/s from one GPU (data/benchmarks/gpu-two-h100-end-to-end-2026-11-27).
+# ~330 pairs/s from one GPU (data/benchmarks/gpu-two-h100-end-to-end-2026-11-27). Measured on an H100:
+# N contexts of one process 30-50 pairs/s in all from N = 4 on, N processes ~400-500
+# (data/benchmarks/gpu-render-threads-2026-11-27). With LIBERO_GL_THREADS=shared set, the threads
+# render through one shared GL thread instead (libero_sim::gl_thread).
 #
 # usage (on the GPU machine, from the repo root): scripts/bench/gpu_render_processes.sh CARRY OUT [N ...]
 #   CARRY: scripts/bench/gpu_carry.sh's folder; OUT: where the figures go; N: default 1 4 16 32.

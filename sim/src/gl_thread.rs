@@ -35,6 +35,8 @@ use std::sync::{Arc, Mutex};
 
 /// Work for the GL thread; the lifetime is erased by [`GlThread::call`], which waits for it.
 type Job = Box<dyn FnOnce(&Rc<GlContext>) + Send + 'static>;
+/// A [`Job`] before [`GlThread::call`] erases its lifetime: borrowing the caller's state.
+type BorrowingJob<'a> = Box<dyn FnOnce(&Rc<GlContext>) + 'a>;
 
 /// A thread holding one current GL context, running the renders it is handed in turn.
 pub struct GlThread {
@@ -134,7 +136,7 @@ impl GlThread {
         let job = move |gl: &Rc<GlContext>| {
             let _ = reply.send(catch_unwind(AssertUnwindSafe(|| job(gl))));
         };
-        let job: Box<dyn FnOnce(&Rc<GlContext>) + '_> = Box::new(job);
+        let job: BorrowingJob<'_> = Box::new(job);
         // SAFETY: this function returns only after the job has run (or was dropped unrun when the
         // thread is gone), so its borrows outlive every use; the caller vouches for the rest.
         let job: Job = unsafe { std::mem::transmute(job) };

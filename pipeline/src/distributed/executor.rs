@@ -234,7 +234,7 @@ mod tests {
     /// MuJoCo or other bundles is refused with each difference named.
     #[test]
     fn a_manifest_of_another_build_mujoco_or_bundles_is_refused_with_what_differs() {
-        let bundles = BundleSet::open(&crate::bundles_location::resolve(None).unwrap()).unwrap();
+        let bundles = BundleSet::open(crate::bundles_location::resolve(None).unwrap()).unwrap();
         let suite: Suite = "libero_spatial".parse().unwrap();
         let tasks = BTreeSet::from([(suite, 0)]);
         let manifest = RunManifest {

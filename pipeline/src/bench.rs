@@ -219,41 +219,52 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     let (frames, size) = (args.frames, args.size);
     // One thread's measurement: ms per camera pair and the EGL (device, CUDA device) it rendered on.
     let measure = |env: &mut LiberoEnv, render: &mut dyn FnMut(&mut LiberoEnv) -> Result<()>| -> Result<f64> {
-        render(env)?; // warm-up
-        barrier.wait(); // all threads render at the same time
+        let warm_up = render(env);
+        barrier.wait(); // all threads render at the same time (each passes, failed or not)
+        warm_up?;
         let t0 = Instant::now();
         for _ in 0..frames {
             render(env)?;
         }
         Ok(1000.0 * t0.elapsed().as_secs_f64() / f64::from(frames))
     };
-    let pair = |env: &mut LiberoEnv, renderer: &mut SceneRenderer| -> Result<()> {
-        for cam in crate::media::CAMERAS {
-            env.render(renderer, cam, size, size)?;
-        }
-        Ok(())
+    let pair = |env: &mut LiberoEnv, renderer: &mut SceneRenderer| -> Result<Vec<Vec<u8>>> {
+        crate::media::CAMERAS.iter().map(|cam| Ok(env.render(renderer, cam, size, size)?.rgb)).collect()
     };
-    let results: Vec<Result<(f64, String)>> = std::thread::scope(|scope| {
+    // Per thread: ms per pair, the device, and whether its last pair through the GL thread equals
+    // the pair a context of its own renders (`None` where it renders on its own context).
+    type ThreadResult = Result<(f64, String, Option<bool>)>;
+    let results: Vec<ThreadResult> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..args.threads)
-            .map(|_| {
-                let (bundle, measure, pair) = (&bundle, &measure, &pair);
-                scope.spawn(move || -> Result<(f64, String)> {
+            .map(|t| {
+                let (bundle, measure, pair, barrier) = (&bundle, &measure, &pair, &barrier);
+                scope.spawn(move || -> ThreadResult {
                     let mut env = LiberoEnv::new(bundle)?;
-                    env.reset(0, 0)?;
+                    // a different state per thread, so a frame drawn into another thread's buffer shows
+                    env.reset(t % 10, 0)?;
+                    let own_pair = |env: &mut LiberoEnv| -> Result<Vec<Vec<u8>>> {
+                        let gl = std::rc::Rc::new(GlContext::new()?);
+                        let mut renderer = env.renderer(gl, RenderOptions::default())?;
+                        pair(env, &mut renderer)
+                    };
                     if args.context_per_thread {
                         let gl = std::rc::Rc::new(GlContext::new()?);
                         let device = format!("{:?}", gl.device().map(|d| (d.index, d.cuda)));
                         let mut renderer = env.renderer(gl, RenderOptions::default())?;
-                        let ms = measure(&mut env, &mut |env| pair(env, &mut renderer))?;
-                        return Ok((ms, device));
+                        let ms = measure(&mut env, &mut |env| pair(env, &mut renderer).map(drop))?;
+                        return Ok((ms, device, None));
                     }
                     let thread = GlThread::for_worker()?;
                     let device = format!("{:?}", thread.device().map(|d| (d.index, d.cuda)));
                     // SAFETY: the env and the renderer are used on the GL thread while this one waits.
                     let mut renderer =
                         unsafe { OnGlThread::make(thread, |gl| env.renderer(gl.clone(), RenderOptions::default()))? };
-                    let ms = measure(&mut env, &mut |env| unsafe { renderer.with(|r| pair(env, r)) })?;
-                    Ok((ms, device))
+                    let ms = measure(&mut env, &mut |env| unsafe { renderer.with(|r| pair(env, r).map(drop)) });
+                    let through = ms.is_ok().then(|| unsafe { renderer.with(|r| pair(&mut env, r)) });
+                    barrier.wait(); // every thread's GL-thread renders done before the own contexts
+                    let (ms, through) = (ms?, through.expect("rendered when measured")?);
+                    drop(renderer);
+                    Ok((ms, device, Some(through == own_pair(&mut env)?)))
                 })
             })
             .collect();
@@ -261,10 +272,13 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     });
     let mut ms = Vec::new();
     let mut devices = std::collections::BTreeMap::<String, usize>::new();
+    let (mut checked, mut equal) = (0, 0);
     for r in results {
-        let (t, d) = r?;
+        let (t, d, same) = r?;
         ms.push(t);
         *devices.entry(d).or_default() += 1;
+        checked += same.is_some() as usize;
+        equal += (same == Some(true)) as usize;
     }
     ms.sort_by(f64::total_cmp);
     let all: f64 = ms.iter().map(|t| 1000.0 / t).sum();
@@ -282,6 +296,13 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
          ms per pair min {min:.1}, median {median:.1}, max {max:.1}; {all:.0} pairs/s in all; threads per (EGL \
          device, CUDA device): {devices:?}"
     );
+    if checked > 0 {
+        // the same check as tests/render.rs, on whatever GPU this runs
+        println!("threads whose last pair equals, bit for bit, the pair a GL context of their own renders: {equal} of {checked}");
+        if equal < checked {
+            bail!("{} thread(s) got other frames through the GL thread than on a context of their own", checked - equal);
+        }
+    }
     Ok(())
 }
 

@@ -238,13 +238,16 @@ fn top_frames_match_the_oracles() {
     assert!(lowest >= 40.0, "a top frame is below 40 dB PSNR against the oracle's");
 }
 
+/// A policy of the tests: the action of (env, seed, step), with a buffer it may fill on the way.
+type ActionOf<'a> = dyn Fn(&AlohaEnv, u32, u32, &mut Vec<[f32; 14]>) -> [f32; 14] + Sync + 'a;
+
 /// The episodes of lerobot's protocol (seeds 1000 + i) of `task` that reach reward 4 within
 /// `steps`, with the step they first do, each action from `act(env, seed, t)`, on two threads.
 fn successes(
     task: AlohaTask,
     seeds: std::ops::Range<u32>,
     steps: u32,
-    act: &(dyn Fn(&AlohaEnv, u32, u32, &mut Vec<[f32; 14]>) -> [f32; 14] + Sync),
+    act: &ActionOf<'_>,
 ) -> Vec<(u32, u32)> {
     let seeds: Vec<u32> = seeds.collect();
     let halves: Vec<&[u32]> = seeds.chunks(seeds.len().div_ceil(2)).collect();

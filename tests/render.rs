@@ -148,7 +148,9 @@ fn workers_sharing_one_gl_thread_get_the_frames_of_a_context_each() {
     use libero_sim::gl_thread::{GlThread, OnGlThread};
     let set = bundles();
     let shared = GlThread::start(libero_sim::gl::next_device().unwrap().as_ref()).unwrap();
-    let frames: Vec<(Vec<Vec<u8>>, Vec<Vec<u8>>)> = std::thread::scope(|scope| {
+    // per worker: its frames through the shared thread, and on a context of its own
+    type Frames = Vec<Vec<u8>>;
+    let frames: Vec<(Frames, Frames)> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..3u32)
             .map(|task| {
                 let (set, shared) = (&set, shared.clone());

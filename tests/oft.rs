@@ -112,25 +112,26 @@ fn workers_sharing_one_gl_thread_store_the_steps_of_a_thread_each() {
     let s = specs.to_str().unwrap();
     ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0,1", "--trials", "2", "-o", s]));
     let policy = format!("oft:{}?unnorm=libero_spatial_no_noops", ckpt.display());
-    let run = |name: &str, threads: &str| {
-        let out = d.join(name);
-        let args = ["run", s, "--out", out.to_str().unwrap(), "--policy", &policy, "--max-steps", "9", "--jobs", "4"];
-        Command::new(libero_e2e::pipeline_bin())
-            .args(args)
-            .env("LIBERO_GL_THREADS", threads)
-            .current_dir(repo_root())
-            .output()
-            .unwrap()
-    };
-    let refused = run("bogus", "one");
+    let bogus = d.join("bogus");
+    let args = ["run", s, "--out", bogus.to_str().unwrap(), "--policy", &policy];
+    let refused = libero_e2e::pipeline_with_env(&args, &[("LIBERO_GL_THREADS", "one")]);
     let text = String::from_utf8_lossy(&refused.stderr);
     assert!(!refused.status.success() && text.contains("LIBERO_GL_THREADS") && text.contains("shared"), "{text}");
-    assert!(!d.join("bogus").join("episodes").exists(), "an episode started");
-    ok(run("per-worker", "per-worker"));
-    ok(run("shared", "shared"));
-    let query = "SELECT episode_key, policy_step, action FROM steps WHERE policy_step IS NOT NULL \
-                 ORDER BY episode_key, policy_step";
-    let (own, shared) = (sql_rows(&d.join("per-worker"), query, &[]), sql_rows(&d.join("shared"), query, &[]));
+    assert!(!bogus.join("episodes").exists(), "an episode started");
+    let steps = |name: &str, threads: &str| {
+        let extra = ["--max-steps", "9", "--jobs", "4"];
+        let env = [("LIBERO_GL_THREADS", threads)];
+        libero_e2e::run_policy_steps_with_env(
+            &specs,
+            &d.join(name),
+            &policy,
+            &extra,
+            "episode_key, policy_step, action",
+            &env,
+        )
+        .1
+    };
+    let (own, shared) = (steps("per-worker", "per-worker"), steps("shared", "shared"));
     assert_eq!(own.len(), 4 * 9);
     assert_eq!(own, shared, "a shared GL thread changed what the policy saw");
 }

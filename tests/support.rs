@@ -55,7 +55,14 @@ pub fn read_png(path: &Path, orientation: libero_sim::render::Orientation) -> li
 
 /// Run the `pipeline` binary from the repository root.
 pub fn pipeline(args: &[&str]) -> Output {
-    Command::new(pipeline_bin()).args(args).current_dir(repo_root()).output().expect("run pipeline")
+    pipeline_with_env(args, &[])
+}
+
+/// [`pipeline`] with these environment variables set.
+pub fn pipeline_with_env(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut command = Command::new(pipeline_bin());
+    command.args(args).current_dir(repo_root()).envs(env.iter().copied());
+    command.output().expect("run pipeline")
 }
 
 /// The stdout of a `pipeline` call that must succeed (else both streams, in the panic).
@@ -78,9 +85,21 @@ pub fn run_policy_steps(
     extra: &[&str],
     columns: &str,
 ) -> (String, Vec<Vec<String>>) {
+    run_policy_steps_with_env(specs, run, policy, extra, columns, &[])
+}
+
+/// [`run_policy_steps`] with these environment variables set for the run.
+pub fn run_policy_steps_with_env(
+    specs: &Path,
+    run: &Path,
+    policy: &str,
+    extra: &[&str],
+    columns: &str,
+    env: &[(&str, &str)],
+) -> (String, Vec<Vec<String>>) {
     let mut args = vec!["run", specs.to_str().unwrap(), "--out", run.to_str().unwrap(), "--policy", policy];
     args.extend_from_slice(extra);
-    let out = pipeline(&args);
+    let out = pipeline_with_env(&args, env);
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
     assert!(out.status.success(), "{policy}: {stderr}");
     let errors = sql_rows(run, "SELECT count(*) FROM episodes WHERE error_kind IS NOT NULL", &[]);

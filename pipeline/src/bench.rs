@@ -298,9 +298,14 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     );
     if checked > 0 {
         // the same check as tests/render.rs, on whatever GPU this runs
-        println!("threads whose last pair equals, bit for bit, the pair a GL context of their own renders: {equal} of {checked}");
+        println!(
+            "threads whose last pair equals, bit for bit, the pair a GL context of their own renders: {equal} of {checked}"
+        );
         if equal < checked {
-            bail!("{} thread(s) got other frames through the GL thread than on a context of their own", checked - equal);
+            bail!(
+                "{} thread(s) got other frames through the GL thread than on a context of their own",
+                checked - equal
+            );
         }
     }
     Ok(())

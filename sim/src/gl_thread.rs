@@ -42,7 +42,6 @@ type BorrowingJob<'a> = Box<dyn FnOnce(&Rc<GlContext>) + 'a>;
 pub struct GlThread {
     jobs: Sender<Job>,
     device: Option<DeviceInfo>,
-    vendor: String,
 }
 
 /// The variable that chooses between a GL thread for each worker (`per-worker`, the default) and
@@ -83,15 +82,15 @@ impl GlThread {
                     Ok(gl) => Rc::new(gl),
                     Err(e) => return drop(ready.send(Err(e))),
                 };
-                let _ = ready.send(Ok((gl.device().cloned(), gl.vendor().to_string())));
+                let _ = ready.send(Ok(gl.device().cloned()));
                 while let Ok(job) = queue.recv() {
                     job(&gl);
                 }
             })
             .map_err(|e| SimError::Other(format!("cannot start a GL thread: {e}")))?;
-        let (device, vendor) =
+        let device =
             started.recv().map_err(|_| SimError::Other("the GL thread ended while making its context".into()))??;
-        Ok(Arc::new(GlThread { jobs, device, vendor }))
+        Ok(Arc::new(GlThread { jobs, device }))
     }
 
     /// The GL thread a rollout worker renders on, on the device [`crate::gl::next_device`] gives
@@ -114,13 +113,9 @@ impl GlThread {
         Ok(thread)
     }
 
+    /// The EGL device its context is on.
     pub fn device(&self) -> Option<&DeviceInfo> {
         self.device.as_ref()
-    }
-
-    /// "Mesa Project" or "NVIDIA", as EGL reports it.
-    pub fn vendor(&self) -> &str {
-        &self.vendor
     }
 
     /// Run `job` on the GL thread with its context and wait for its result. A panic in `job` is
@@ -164,10 +159,7 @@ impl<T> OnGlThread<T> {
     ///
     /// # Safety
     /// As [`GlThread::call`] for `make`.
-    pub unsafe fn make<E>(
-        thread: Arc<GlThread>,
-        make: impl FnOnce(&Rc<GlContext>) -> Result<T, E>,
-    ) -> Result<Self, E> {
+    pub unsafe fn make<E>(thread: Arc<GlThread>, make: impl FnOnce(&Rc<GlContext>) -> Result<T, E>) -> Result<Self, E> {
         let value = unsafe { thread.call(make) }?;
         Ok(OnGlThread { value: Some(value), thread })
     }
@@ -179,10 +171,6 @@ impl<T> OnGlThread<T> {
     pub unsafe fn with<R>(&mut self, job: impl FnOnce(&mut T) -> R) -> R {
         let value = self.value.as_mut().expect("present until dropped");
         unsafe { self.thread.call(|_| job(value)) }
-    }
-
-    pub fn thread(&self) -> &Arc<GlThread> {
-        &self.thread
     }
 }
 

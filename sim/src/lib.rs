@@ -14,7 +14,8 @@
 //! - [`viewpoint`]: LIBERO-Plus camera viewpoints (the `agentview` pose of a view variant);
 //! - [`gl`] and [`render`]: headless EGL contexts and camera frames rendered as the reference renders
 //!   them (orientation conventions, the published stack's look, a clearly named preview mode);
-//!   [`gl_thread`]: one context per GPU on a thread of its own, rendering for every worker;
+//!   [`gl_thread`]: GL contexts on threads of their own that render for the workers (one each, or
+//!   one per GPU shared by all);
 //! - [`aloha`]: a second benchmark, ALOHA-sim (gym-aloha's bimanual tasks), on the same MuJoCo and
 //!   renderer.
 //!

@@ -368,7 +368,7 @@ impl SceneRenderer {
     /// Make this renderer's offscreen buffer the one GL draws into and reads from.
     ///
     /// Why every time: the GL binding belongs to the GL context, not to MuJoCo's render context.
-    /// Where several renderers share one GL context (the GL threads of `crate::gl_thread`, one
+    /// Where several renderers share one GL context (`crate::gl_thread`'s shared GL threads, one
     /// per GPU for all workers), a renderer made or used in between leaves its own buffer bound,
     /// and a draw without this went into that renderer's buffer: the frame read back was stale
     /// (`tests/render.rs`, three workers on one GL thread, agentview frames differing entirely).

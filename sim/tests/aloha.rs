@@ -243,12 +243,7 @@ type ActionOf<'a> = dyn Fn(&AlohaEnv, u32, u32, &mut Vec<[f32; 14]>) -> [f32; 14
 
 /// The episodes of lerobot's protocol (seeds 1000 + i) of `task` that reach reward 4 within
 /// `steps`, with the step they first do, each action from `act(env, seed, t)`, on two threads.
-fn successes(
-    task: AlohaTask,
-    seeds: std::ops::Range<u32>,
-    steps: u32,
-    act: &ActionOf<'_>,
-) -> Vec<(u32, u32)> {
+fn successes(task: AlohaTask, seeds: std::ops::Range<u32>, steps: u32, act: &ActionOf<'_>) -> Vec<(u32, u32)> {
     let seeds: Vec<u32> = seeds.collect();
     let halves: Vec<&[u32]> = seeds.chunks(seeds.len().div_ceil(2)).collect();
     std::thread::scope(|s| {

@@ -23,8 +23,7 @@ thread_local! {
 }
 
 /// The rollout worker's GL thread (chosen on first use, shared by LIBERO's and ALOHA-sim's policy
-/// cameras): its GPU's one GL thread, or a thread of its own on a CPU machine
-/// ([`GlThread::for_worker`]).
+/// cameras): a thread of its own, or its GPU's shared one ([`GlThread::for_worker`]).
 pub fn worker_gl() -> Result<Arc<GlThread>, SimError> {
     GL.with(|cell| cell.get_or_init(|| GlThread::for_worker().map_err(|e| e.to_string())).clone())
         .map_err(SimError::Other)
@@ -51,8 +50,7 @@ impl PolicyCameras {
     }
 
     /// The cameras' views of the env's current state: agentview, and the wrist camera when
-    /// `wrist` (else an empty image).
-    /// Both cameras are drawn in one call to the GL thread.
+    /// `wrist` (else an empty image), drawn in one call to the GL thread.
     pub fn capture(&mut self, env: &mut LiberoEnv, wrist: bool) -> Result<CameraImages, SimError> {
         let size = self.size;
         // SAFETY: the env and the renderer are used on the GL thread while this one waits.

@@ -350,17 +350,19 @@ step "reference camera frames for the render-parity tests (MuJoCo 3.3.7, and 3.2
 VENV323_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh | sha256sum | cut -c1-12)
 VENV323="$CACHE/ref-venv-mujoco323-$VENV323_KEY"
 bash scripts/setup/reference_venv_mujoco323.sh "$VENV323" "$VENV"
-FRAMES_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh scripts/setup/pro_venv.sh \
+# the canonical suites set up here (their bundles and golden states): all four unless --suites says less
+FRAMES_KEY=$( (cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh scripts/setup/pro_venv.sh \
   scripts/reference/build_bundles.py scripts/reference/libero_ref.py scripts/reference/golden.py \
-  scripts/reference/frames.py | sha256sum | cut -c1-12)
+  scripts/reference/frames.py; echo "$golden") | sha256sum | cut -c1-12)
 FRAMES="$CACHE/frames-$FRAMES_KEY"
 if [ ! -f "$FRAMES/.complete" ]; then
   rm -rf "$FRAMES"
   (cd scripts/reference &&
-    "$VENV/bin/python" frames.py "$FRAMES/mujoco-3.3.7" --tasks 0 --inits 0,1,2 --steps 0,40 --golden "$GOLDEN" >/dev/null \
-      2> >(grep -v "WARNING\|^\[info\]" >&2) &&
-    "$VENV323/bin/python" frames.py "$FRAMES/mujoco-3.2.3" --tasks all --inits 0 --steps 0 >/dev/null \
-      2> >(grep -v "WARNING\|^\[info\]" >&2) &&
+    { [ -z "$golden" ] || {
+      "$VENV/bin/python" frames.py "$FRAMES/mujoco-3.3.7" --suites "$golden" --tasks 0 --inits 0,1,2 --steps 0,40 \
+        --golden "$GOLDEN" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2) &&
+      "$VENV323/bin/python" frames.py "$FRAMES/mujoco-3.2.3" --suites "$golden" --tasks all --inits 0 --steps 0 \
+        >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2); }; } &&
     "$PRO_VENV/bin/python" frames.py "$FRAMES/mujoco-3.3.7" --tasks "$PRO_TEST_TASKS" --inits 0 --steps 0,40 \
       --golden "$GOLDEN" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
   touch "$FRAMES/.complete"

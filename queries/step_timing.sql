@@ -2,7 +2,9 @@
 -- and what the measured rate means for the canonical protocol. `pipeline bench run` prints it.
 --
 -- A rollout worker's policy step is: render the cameras (render_ms), call the policy (policy_ms),
--- step the env (sim_ms). For a batched model, policy_ms is the worker's preparation of its query
+-- step the env (sim_ms). An episode's first policy step's render also makes the renderer when its
+-- worker has none for the task (uploading the scene's meshes and textures), so the render time is
+-- also given for first steps and for the steps after them. For a batched model, policy_ms is the worker's preparation of its query
 -- (prepare_ms: image preprocessing), the wait for the forward to start (queue_ms) and the forward
 -- (forward_ms, shared by the forward's episodes). The model's busy fraction is the time inside distinct
 -- forwards over the span the episodes covered (episodes.started_at .. started_at + wall_s): on a
@@ -29,6 +31,8 @@ per_step AS (
     SELECT
         COUNT(*) AS policy_steps,
         AVG(render_ms) AS render_ms,
+        AVG(CASE WHEN policy_step = 0 THEN render_ms END) AS first_step_render_ms,
+        AVG(CASE WHEN policy_step > 0 THEN render_ms END) AS later_steps_render_ms,
         AVG(sim_ms) AS sim_ms,
         AVG(policy_ms) AS policy_ms,
         AVG(COALESCE(queue_ms, 0)) AS queue_ms,
@@ -53,6 +57,8 @@ SELECT
     span.episodes * 3600.0 / span.span_s AS episodes_per_hour,
     per_step.policy_steps / span.span_s AS policy_steps_per_s,
     per_step.render_ms,
+    per_step.first_step_render_ms,
+    per_step.later_steps_render_ms,
     per_step.sim_ms,
     per_step.policy_ms,
     per_step.queue_ms,

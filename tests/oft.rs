@@ -100,10 +100,12 @@ fn batched_oft_forwards_give_each_episode_its_unbatched_actions() {
     assert!(later <= 1e-2, "batched actions of the second chunk differ by {later}");
 }
 
-/// Workers rendering through one shared GL thread (`LIBERO_GL_THREADS=shared`, meant for GPUs:
-/// `libero_sim::gl_thread`) store the steps of workers with a GL thread each: 4 workers on 4
-/// episodes of two tasks, every action equal (the frames are equal bit for bit and the model
-/// is deterministic here). An unknown value stops the run before any episode, naming the values.
+/// Workers rendering through one shared GL thread (`LIBERO_GL_THREADS=shared`, the default on
+/// GPUs: `libero_sim::gl_thread`) store the steps of workers with a GL thread each: 4 episodes of
+/// two tasks, every action equal (the frames are equal bit for bit and the model is deterministic
+/// here). The shared run has one worker, which keeps its renderer for a task's second episode and
+/// makes a new one for the next task; the other has 4 workers, a renderer per episode. An unknown
+/// value stops the run before any episode, naming the values.
 #[test]
 fn workers_sharing_one_gl_thread_store_the_steps_of_a_thread_each() {
     let d = test_dir("oft", "gl-threads");
@@ -118,8 +120,8 @@ fn workers_sharing_one_gl_thread_store_the_steps_of_a_thread_each() {
     let text = String::from_utf8_lossy(&refused.stderr);
     assert!(!refused.status.success() && text.contains("LIBERO_GL_THREADS") && text.contains("shared"), "{text}");
     assert!(!bogus.join("episodes").exists(), "an episode started");
-    let steps = |name: &str, threads: &str| {
-        let extra = ["--max-steps", "9", "--jobs", "4"];
+    let steps = |name: &str, threads: &str, jobs: &str| {
+        let extra = ["--max-steps", "9", "--jobs", jobs];
         let env = [("LIBERO_GL_THREADS", threads)];
         libero_e2e::run_policy_steps_with_env(
             &specs,
@@ -131,7 +133,7 @@ fn workers_sharing_one_gl_thread_store_the_steps_of_a_thread_each() {
         )
         .1
     };
-    let (own, shared) = (steps("per-worker", "per-worker"), steps("shared", "shared"));
+    let (own, shared) = (steps("per-worker", "per-worker", "4"), steps("shared", "shared", "1"));
     assert_eq!(own.len(), 4 * 9);
     assert_eq!(own, shared, "a shared GL thread changed what the policy saw");
 }

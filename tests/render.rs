@@ -195,3 +195,55 @@ fn workers_sharing_one_gl_thread_get_the_frames_of_a_context_each() {
     // and the scenes differ: a frame of one task is not another's
     assert!(frames[0].0[0] != frames[1].0[0]);
 }
+
+/// A renderer kept across a task's episodes (as a run's worker keeps its env's, so the scene is
+/// uploaded once per task, not once per episode) draws each episode's frames bit for bit as a
+/// renderer made for that episode: after a reset to another init state, and with an episode's
+/// edits of the model (LIBERO-PRO's lights and colours, LIBERO-Plus's camera pose) and without.
+#[test]
+fn a_renderer_kept_across_episodes_draws_what_a_new_one_draws() {
+    use libero_sim::env::{Appearance, EpisodeEdits, Lighting};
+    use libero_sim::viewpoint::CameraPose;
+    let bundle = bundles().load("libero_spatial".parse().unwrap(), 1).unwrap();
+    let mut env = LiberoEnv::new(&bundle).unwrap();
+    let options = RenderOptions { max_width: 128, max_height: 128, ..Default::default() };
+    let gl = Rc::new(GlContext::new().unwrap());
+    let pair = |env: &mut LiberoEnv, r: &mut libero_sim::render::SceneRenderer| {
+        ["agentview", "robot0_eye_in_hand"].map(|c| env.render(r, c, 128, 128).unwrap().rgb)
+    };
+    let mut kept = env.renderer(gl.clone(), options).unwrap();
+    let first = object_edits(&env);
+    let episodes = [(0, EpisodeEdits::default()), (3, first), (5, EpisodeEdits::default())];
+    let mut seen = Vec::new();
+    for (init, edits) in episodes {
+        env.set_episode_edits(edits).unwrap();
+        env.reset(init, 0).unwrap();
+        for step in 0..2 {
+            let mut new = env.renderer(gl.clone(), options).unwrap();
+            let fresh = pair(&mut env, &mut new);
+            let again = pair(&mut env, &mut kept);
+            for (camera, (a, b)) in again.iter().zip(&fresh).enumerate() {
+                let n = a.iter().zip(b).filter(|(x, y)| x != y).count();
+                assert!(
+                    n == 0,
+                    "init state {init}, step {step}, camera {camera}: {n} bytes differ from a new renderer's"
+                );
+            }
+            seen.push(again[0].clone());
+            env.step([0.3, 0.0, 0.1, 0.0, 0.0, 0.0, -1.0]).unwrap();
+        }
+    }
+    // the episodes' pictures differ, so the comparison saw three different scenes
+    assert!(seen[0] != seen[2] && seen[2] != seen[4] && seen[0] != seen[4]);
+
+    /// Lights, an object's colour and the camera pose changed, as the perturbation suites change them.
+    fn object_edits(env: &LiberoEnv) -> EpisodeEdits {
+        let object = env.object_names().next().expect("a scene with objects").to_string();
+        EpisodeEdits {
+            lighting: Some(Lighting { ambient: Some(0.6), diffuse: Some(0.3), specular: Some(0.1) }),
+            appearance: Some(Appearance { objects: vec![object], rgba: [0.9, 0.1, 0.1, 1.0] }),
+            agentview: Some(CameraPose { pos: [0.9, 0.1, 1.5], quat: [0.65, 0.28, 0.28, 0.65] }),
+            ..Default::default()
+        }
+    }
+}

@@ -42,7 +42,8 @@ pub struct RenderArgs {
     #[arg(long, default_value = ".venv/bin/python")]
     python: PathBuf,
     /// Threads rendering at once in this process, as a run's workers do (through GL threads,
-    /// `libero_sim::gl_thread`: one each, or the GPU's one with `LIBERO_GL_THREADS=shared`):
+    /// `libero_sim::gl_thread`: the GPU's one shared thread, or one each on the CPU or with
+    /// `LIBERO_GL_THREADS=per-worker`):
     /// with more than one, each renders `--frames`
     /// agentview + wrist pairs of the first suite's task 0 at reference quality, and the spread
     /// of their ms per pair and the pairs/s of all are printed instead (compare with as many
@@ -233,7 +234,7 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     };
     // Per thread: ms per pair, the device, and whether its last pair through the GL thread equals
     // the pair a context of its own renders (`None` where it renders on its own context).
-    type ThreadResult = Result<(f64, String, Option<bool>)>;
+    type ThreadResult = Result<(f64, String, Option<bool>, bool)>;
     let results: Vec<ThreadResult> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..args.threads)
             .map(|t| {
@@ -252,10 +253,11 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
                         let device = format!("{:?}", gl.device().map(|d| (d.index, d.cuda)));
                         let mut renderer = env.renderer(gl, RenderOptions::default())?;
                         let ms = measure(&mut env, &mut |env| pair(env, &mut renderer).map(drop))?;
-                        return Ok((ms, device, None));
+                        return Ok((ms, device, None, false));
                     }
                     let thread = GlThread::for_worker()?;
                     let device = format!("{:?}", thread.device().map(|d| (d.index, d.cuda)));
+                    let shared = thread.is_shared();
                     // SAFETY: the env and the renderer are used on the GL thread while this one waits.
                     let mut renderer =
                         unsafe { OnGlThread::make(thread, |gl| env.renderer(gl.clone(), RenderOptions::default()))? };
@@ -264,7 +266,7 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
                     barrier.wait(); // every thread's GL-thread renders done before the own contexts
                     let (ms, through) = (ms?, through.expect("rendered when measured")?);
                     drop(renderer);
-                    Ok((ms, device, Some(through == own_pair(&mut env)?)))
+                    Ok((ms, device, Some(through == own_pair(&mut env)?), shared))
                 })
             })
             .collect();
@@ -272,9 +274,10 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     });
     let mut ms = Vec::new();
     let mut devices = std::collections::BTreeMap::<String, usize>::new();
-    let (mut checked, mut equal) = (0, 0);
+    let (mut checked, mut equal, mut shared) = (0, 0, false);
     for r in results {
-        let (t, d, same) = r?;
+        let (t, d, same, through_shared) = r?;
+        shared |= through_shared;
         ms.push(t);
         *devices.entry(d).or_default() += 1;
         checked += same.is_some() as usize;
@@ -286,7 +289,7 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     let (min, median, max) = (ms[0], ms[ms.len() / 2], ms[ms.len() - 1]);
     let how = if args.context_per_thread {
         "a GL context each, on the thread itself"
-    } else if libero_sim::gl_thread::shared_gl_threads()? {
+    } else if shared {
         "through the GPU's one shared GL thread"
     } else {
         "a GL thread each"

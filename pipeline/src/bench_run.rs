@@ -137,8 +137,11 @@ fn print_step_timing(runtime: &tokio::runtime::Runtime, run: &str) -> Result<()>
         show(value("policy_steps_per_s"), 1)
     );
     println!(
-        "  per policy step, one worker (ms): render {}, policy {} (preparation {}, queue {}, forward {}, other {}), env step {}",
+        "  per policy step, one worker (ms): render {} (an episode's first step {}, later steps {}), policy {} \
+         (preparation {}, queue {}, forward {}, other {}), env step {}",
         show(value("render_ms"), 2),
+        show(value("first_step_render_ms"), 1),
+        show(value("later_steps_render_ms"), 2),
         show(value("policy_ms"), 2),
         show(value("prepare_ms"), 2),
         show(value("queue_ms"), 2),

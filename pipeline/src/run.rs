@@ -147,7 +147,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     };
     // the workers' cameras on GPUs without the model where the machine has such GPUs
     libero_sim::gl::keep_renders_off(&args.policy.model_cuda_devices());
-    libero_sim::gl_thread::shared_gl_threads()?;
+    libero_sim::gl_thread::GlThreads::from_env()?;
     let mut manifest = RunManifest {
         tables_version: tables::TABLES_VERSION,
         run_config: String::new(),

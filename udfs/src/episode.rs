@@ -136,9 +136,12 @@ pub fn start_sha256(bundle: &libero_sim::bundle::TaskBundle, key: &EpisodeKey) -
 }
 
 /// Run one episode on `env` (already built for the key's task) with `policy`, perturbed as the
-/// spec row says (`EpisodePerturbation::default()` for none).
+/// spec row says (`EpisodePerturbation::default()` for none). `cameras` is the env's renderer for
+/// policies that see, made on the first step that asks and kept by the caller for the task's
+/// next episodes (`None` before the first).
 pub fn run_episode(
     env: &mut LiberoEnv,
+    cameras: &mut Option<PolicyCameras>,
     policy: &mut dyn Policy,
     key: &EpisodeKey,
     protocol: &EpisodeProtocol,
@@ -191,8 +194,6 @@ pub fn run_episode(
             return (steps, summary);
         }
     };
-    // Cameras only for policies that see, set up on the first step that asks.
-    let mut cameras: Option<PolicyCameras> = None;
     // LIBERO-PRO's dark noise: one frozen field per camera for the whole episode, made when the
     // image size is first known.
     let mut dark_fields: [Option<Vec<f64>>; 2] = [None, None];
@@ -209,7 +210,7 @@ pub fn run_episode(
                 let t0 = Instant::now();
                 let images = match policy.camera_size() {
                     None => None,
-                    Some(size) => match capture(&mut cameras, env, size, policy.wants_wrist_camera()) {
+                    Some(size) => match capture(cameras, env, size, policy.wants_wrist_camera()) {
                         Ok(mut images) => {
                             if let Some(noise) = &perturbation.sensor_noise {
                                 let mut draws = SeededDraws::new(noise_seed(key, p));

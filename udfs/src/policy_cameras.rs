@@ -29,7 +29,8 @@ pub fn worker_gl() -> Result<Arc<GlThread>, SimError> {
         .map_err(SimError::Other)
 }
 
-/// A renderer for one episode's env, reading both cameras on request.
+/// A renderer of one env's scene (kept across the episodes of the env's task), reading both
+/// cameras on request.
 pub struct PolicyCameras {
     renderer: OnGlThread<SceneRenderer>,
     size: u32,

@@ -13,6 +13,7 @@
 use crate::aloha_episode::{AlohaWorker, run_aloha_episode};
 use crate::episode::{EpisodeContext, EpisodeError, EpisodeProtocol, EpisodeSummary, episode_batch, run_episode};
 use crate::perturbation::EpisodePerturbation;
+use crate::policy_cameras::PolicyCameras;
 use crate::run_store::{RunStore, parquet_bytes};
 use crate::steps_batch::EpisodeKey;
 use arrow::array::{Array, ArrayRef, AsArray, BooleanArray, Int32Array, RecordBatch, StringArray, StructArray};
@@ -100,8 +101,18 @@ type CompiledTask = Arc<(TaskBundle, MjModel)>;
 type TaskSlot = Arc<OnceLock<Result<CompiledTask, SimError>>>;
 /// A task's slot as the cache holds it: alive only while some worker holds the slot.
 type WeakTaskSlot = Weak<OnceLock<Result<CompiledTask, SimError>>>;
-/// A worker's env and the task it is for.
-type WorkerEnv = ((Suite, u32), TaskSlot, LiberoEnv);
+/// A worker's env, kept while its episodes are of one task.
+struct WorkerEnv {
+    task: (Suite, u32),
+    /// Keeps the compiled task alive for the other workers on it.
+    _slot: TaskSlot,
+    env: LiberoEnv,
+    /// The policy cameras' renderer of this env, kept across the task's episodes: a renderer
+    /// uploads the scene's meshes and textures when it is made (~500 ms on an H200, all workers'
+    /// uploads queued on a shared GL thread), and nothing an episode changes in the model
+    /// (`EpisodeEdits`: poses, lights, colours) is in what it uploaded.
+    cameras: Option<PolicyCameras>,
+}
 
 /// Each task's bundle and compiled model, compiled once while workers need it and copied for each.
 ///
@@ -513,7 +524,7 @@ fn run_libero(
         WORKER_ENV.with(|cell| {
             let mut cached = cell.borrow_mut();
             let task = (suite, key.task_id as u32);
-            if cached.as_ref().is_none_or(|(k, _, _)| *k != task) {
+            if cached.as_ref().is_none_or(|w| w.task != task) {
                 if cached.take().is_some() {
                     release_freed_memory();
                 }
@@ -523,7 +534,7 @@ fn run_libero(
                     LiberoEnv::with_model(&bm.0, model)
                 });
                 match env {
-                    Ok(env) => *cached = Some((task, slot, env)),
+                    Ok(env) => *cached = Some(WorkerEnv { task, _slot: slot, env, cameras: None }),
                     Err(e) => {
                         let instruction = ctx
                             .bundles
@@ -536,7 +547,7 @@ fn run_libero(
                     }
                 }
             }
-            let env = &mut cached.as_mut().expect("env just cached").2;
+            let WorkerEnv { env, cameras, .. } = cached.as_mut().expect("env just cached");
             let mut policy = match ctx.policy.instantiate() {
                 Ok(p) => p,
                 Err(e) => {
@@ -548,8 +559,13 @@ fn run_libero(
                     return (Ok(RecordBatch::new_empty(libero_schema::tables::steps())), s);
                 }
             };
-            let (steps, summary) = run_episode(env, policy.as_mut(), key, protocol, perturbation, policy_seed(key));
+            let (steps, summary) =
+                run_episode(env, cameras, policy.as_mut(), key, protocol, perturbation, policy_seed(key));
             policy.end_episode();
+            if summary.error.is_some() {
+                // a failed render may leave its renderer in any state: the next episode makes its own
+                *cameras = None;
+            }
             (steps.finish(), summary)
         })
     };

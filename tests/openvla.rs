@@ -48,6 +48,8 @@ fn an_openvla_checkpoint_runs_through_the_pipeline() {
     assert!(grippers.iter().all(|g| ["-1.0", "0.0", "1.0"].contains(&g[0].as_str())), "{grippers:?}");
     let identity = sql_rows(&run, "SELECT policy_identity FROM manifest", &[]).concat().join(",");
     assert!(identity.contains("jpeg95") && identity.contains("libero_spatial_no_noops"), "{identity}");
+    // the attention the model ran: eager on a CPU unless the spec says otherwise
+    assert!(identity.contains("attention") && identity.contains("eager: softmax"), "{identity}");
 }
 
 /// `&batch=4` with 4 workers: the episodes' queries share forwards (prompts of different lengths,

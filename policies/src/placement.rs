@@ -61,6 +61,66 @@ pub fn devices_text(devices: &[ModelDevice]) -> String {
     devices.iter().map(ModelDevice::to_string).collect::<Vec<_>>().join(",")
 }
 
+/// Which of transformers' attention implementations an OpenVLA-family forward reproduces
+/// (`&attention=eager|sdpa`). In fp32 on a CPU they agree to ~1e-6; in bf16 on a GPU each is the
+/// arithmetic of its own kernels, and SDPA's fused kernels (flash or memory-efficient attention)
+/// also cost far less time and memory on long sequences.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Attention {
+    /// `softmax(q kᵀ / √d + mask) v` in separate kernels, the softmax in f32 (`attn_implementation="eager"`).
+    Eager,
+    /// `torch.nn.functional.scaled_dot_product_attention` with the same additive mask, or none
+    /// (`attn_implementation="sdpa"`): the flash kernel where no mask is needed (one episode per
+    /// forward), the memory-efficient one with a padding mask.
+    Sdpa,
+}
+
+impl Attention {
+    /// A model's attention when the spec names none.
+    /// - OpenVLA on a GPU: SDPA. The published LIBERO loop loads OpenVLA with
+    ///   `attn_implementation="flash_attention_2"` (openvla's `experiments/robot/openvla_utils.py`,
+    ///   `get_vla`); SDPA is libtorch's flash attention where no mask is needed, and 72.1 ms a B = 1
+    ///   call on an H100 against eager's 83.8 (`data/benchmarks/gpu-forward-recheck-h100-2026-11-27`).
+    /// - OpenVLA on a CPU: eager, the arithmetic of the Python reference the parity tests compare
+    ///   with (SDPA agrees with it to ~1e-6 in fp32).
+    /// - OpenVLA-OFT: SDPA everywhere, what openvla-oft's `get_vla` loads.
+    pub fn model_default(oft: bool, on_gpu: bool) -> Attention {
+        if oft || on_gpu { Attention::Sdpa } else { Attention::Eager }
+    }
+
+    /// What the run manifest records.
+    pub fn describe(&self) -> &'static str {
+        match self {
+            Attention::Eager => {
+                "eager: softmax(q k^T / sqrt(d) + mask) v in separate kernels, softmax in f32 (transformers' eager)"
+            }
+            Attention::Sdpa => {
+                "sdpa: torch's scaled_dot_product_attention (flash attention without a mask, memory-efficient with a padding mask)"
+            }
+        }
+    }
+}
+
+impl fmt::Display for Attention {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Attention::Eager => "eager",
+            Attention::Sdpa => "sdpa",
+        })
+    }
+}
+
+impl FromStr for Attention {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "eager" => Ok(Attention::Eager),
+            "sdpa" => Ok(Attention::Sdpa),
+            other => Err(format!("unknown attention {other:?}: eager or sdpa")),
+        }
+    }
+}
+
 /// Weight-only quantisation of a model's linear layers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum Quantization {
@@ -87,7 +147,7 @@ impl Quantization {
             Quantization::Int4 => {
                 "int4 weight-only: linear layers in groups of 128 inputs (64 or 32 where the width needs), asymmetric \
                  (w = (q - 8) scale + zero, tinygemm's layout), int8 where the input width is not a multiple of 32; torch's \
-                 tinygemm kernel for up to 16 rows on CUDA, dequantised otherwise; embeddings, lm_head, norms and the \
+                 tinygemm kernel for up to 64 rows on CUDA, dequantised otherwise; embeddings, lm_head, norms and the \
                  patch embedding unquantised"
             }
         }

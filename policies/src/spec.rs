@@ -1,6 +1,6 @@
 //! Naming a policy on the command line and recording its identity in the run manifest.
 
-use crate::placement::{ModelDevice, Quantization, devices_text, parse_devices};
+use crate::placement::{Attention, ModelDevice, Quantization, devices_text, parse_devices};
 use crate::remote::openpi::{LIBERO_REPLAN_STEPS, OpenpiConfig, OpenpiPolicy};
 use crate::remote::openpi_aloha::{ALOHA_REPLAN_STEPS, OpenpiAlohaPolicy};
 use crate::remote::starvla::{StarVlaConfig, StarVlaPolicy};
@@ -80,6 +80,9 @@ pub struct CheckpointOptions {
     /// One model replica per device, each with its own batcher (`devices=cuda:0,cuda:1`, with
     /// `batch`); empty: one model on the default device (the first GPU, else the CPU).
     pub devices: Vec<ModelDevice>,
+    /// The language model's attention (`attention=eager|sdpa`); `None`: the model's default on
+    /// its device ([`Attention::model_default`]).
+    pub attention: Option<Attention>,
 }
 
 impl CheckpointOptions {
@@ -91,6 +94,9 @@ impl CheckpointOptions {
         }
         if self.quant != Quantization::None {
             options.push(format!("quant={}", self.quant));
+        }
+        if let Some(a) = self.attention {
+            options.push(format!("attention={a}"));
         }
         options
     }
@@ -493,11 +499,12 @@ fn placement_identity(
     o: &CheckpointOptions,
     policy: &str,
 ) -> Result<(), PolicyError> {
-    let mut devices = Vec::new();
+    let (mut devices, mut on_gpu) = (Vec::new(), Vec::new());
     for d in o.replica_devices() {
         let (device, kind) =
             crate::models::device_and_dtype(d).map_err(|detail| PolicyError { policy: policy.into(), detail })?;
         devices.push(format!("{device:?}"));
+        on_gpu.push(device.is_cuda());
         identity["dtype"] = serde_json::json!(format!("{kind:?}"));
     }
     identity["replicas"] = serde_json::json!({
@@ -505,6 +512,16 @@ fn placement_identity(
         "assignment": "each episode on the replica with the fewest episodes in progress when it starts",
     });
     identity["quantization"] = serde_json::json!(o.quant.describe());
+    let oft = matches!(policy, "oft");
+    let attention: Vec<&str> = on_gpu
+        .iter()
+        .map(|&gpu| o.attention.unwrap_or(crate::placement::Attention::model_default(oft, gpu)).describe())
+        .collect();
+    identity["attention"] = serde_json::json!(if attention.windows(2).all(|w| w[0] == w[1]) {
+        serde_json::json!(attention[0])
+    } else {
+        serde_json::json!(attention)
+    });
     Ok(())
 }
 
@@ -526,9 +543,15 @@ fn load_openvla(o: &CheckpointOptions, spec: &str) -> Result<Box<dyn Policy>, Po
     use crate::models::openvla::{OpenVlaBatchModel, OpenVlaPolicy};
     let (dir, key, quant) = (&o.dir, &o.unnorm_key, o.quant);
     match o.batch {
-        None => Ok(Box::new(OpenVlaPolicy::load(dir, key.clone(), None, quant)?)),
+        None => {
+            let mut policy = OpenVlaPolicy::load(dir, key.clone(), None, quant)?;
+            o.attention.inspect(|&a| policy.set_attention(a));
+            Ok(Box::new(policy))
+        }
         Some(n) => batched(spec, n, &o.replica_devices(), "openvla", |device| {
-            OpenVlaBatchModel::load(dir, key.clone(), device, quant)
+            let mut model = OpenVlaBatchModel::load(dir, key.clone(), device, quant)?;
+            o.attention.inspect(|&a| model.set_attention(a));
+            Ok(model)
         }),
     }
 }
@@ -538,10 +561,16 @@ fn load_oft(o: &CheckpointOptions, spec: &str) -> Result<Box<dyn Policy>, Policy
     use crate::models::openvla::oft::{OftBatchModel, OftPolicy};
     let (dir, key, quant) = (&o.dir, &o.unnorm_key, o.quant);
     match o.batch {
-        None => Ok(Box::new(OftPolicy::load(dir, key.clone(), None, quant)?)),
-        Some(n) => {
-            batched(spec, n, &o.replica_devices(), "oft", |device| OftBatchModel::load(dir, key.clone(), device, quant))
+        None => {
+            let mut policy = OftPolicy::load(dir, key.clone(), None, quant)?;
+            o.attention.inspect(|&a| policy.set_attention(a));
+            Ok(Box::new(policy))
         }
+        Some(n) => batched(spec, n, &o.replica_devices(), "oft", |device| {
+            let mut model = OftBatchModel::load(dir, key.clone(), device, quant)?;
+            o.attention.inspect(|&a| model.set_attention(a));
+            Ok(model)
+        }),
     }
 }
 
@@ -604,6 +633,9 @@ fn option_help(name: &str) -> &'static str {
         "chunk" => "chunk=N with N >= 1 (actions executed per query)",
         "state" => "state=0|1 (send the 8-D state)",
         "quant" => "quant=int8|int4 (weight-only quantisation of the linear layers)",
+        "attention" => {
+            "attention=eager|sdpa (the language model's attention; default: sdpa on a GPU, eager on the CPU for openvla, sdpa for oft)"
+        }
         "devices" => {
             "devices=cuda:0,cuda:1 (with batch: one model replica per device; cpu, cuda or cuda:N, a device may repeat)"
         }
@@ -645,7 +677,7 @@ fn parse_oft(rest: &str) -> Result<PolicySpec, String> {
 
 /// A checkpoint directory with `unnorm`, batching, device and quantisation options.
 fn checkpoint_options(kind: &str, rest: &str) -> Result<CheckpointOptions, String> {
-    let (dir, options) = model_options(kind, rest, &["unnorm", "batch", "wait_ms", "devices", "quant"])?;
+    let (dir, options) = model_options(kind, rest, &["unnorm", "batch", "wait_ms", "devices", "quant", "attention"])?;
     let bad = |name: &str, why: String| format!("{kind}:{rest}: expected {} ({why})", option_help(name));
     let unnorm_key = match options.get("unnorm") {
         Some(&"") => return Err(format!("{kind}:{rest}: expected {}", option_help("unnorm"))),
@@ -659,13 +691,17 @@ fn checkpoint_options(kind: &str, rest: &str) -> Result<CheckpointOptions, Strin
         None => Vec::new(),
         Some(d) => parse_devices(d).map_err(|e| bad("devices", e))?,
     };
+    let attention = match options.get("attention") {
+        None => None,
+        Some(a) => Some(a.parse().map_err(|e| bad("attention", e))?),
+    };
     let batch = batching(kind, rest, &options)?;
     if !devices.is_empty() && batch.is_none() {
         return Err(format!(
             "{kind}:{rest}: devices needs batch=N (each device's replica serves its episodes through its own batcher)"
         ));
     }
-    Ok(CheckpointOptions { dir: dir.into(), unnorm_key, batch, quant, devices })
+    Ok(CheckpointOptions { dir: dir.into(), unnorm_key, batch, quant, devices, attention })
 }
 
 /// The benchmark a TorchScript module's `model.json` declares (`"benchmark"`, LIBERO when absent),
@@ -836,6 +872,24 @@ mod tests {
     }
 
     #[test]
+    fn attention_is_an_option_of_checkpoint_policies_and_a_bad_one_names_the_choices() {
+        let p: PolicySpec = "openvla:/c?attention=eager&unnorm=k".parse().unwrap();
+        let PolicySpec::OpenVla(o) = &p else { panic!("{p:?}") };
+        assert_eq!(o.attention, Some(Attention::Eager));
+        assert_eq!(p.to_string(), "openvla:/c?unnorm=k&attention=eager");
+        let p: PolicySpec = "oft:/c?attention=sdpa".parse().unwrap();
+        assert_eq!(p.to_string(), "oft:/c?attention=sdpa");
+        let PolicySpec::OpenVla(o) = "openvla:/c".parse().unwrap() else { panic!() };
+        assert_eq!(o.attention, None);
+        let e = "openvla:/c?attention=flash".parse::<PolicySpec>().unwrap_err();
+        assert!(e.contains("attention=eager|sdpa") && e.contains("flash"), "{e}");
+        // the defaults: the published loop's flash attention on a GPU, the parity reference's eager on a CPU
+        assert_eq!(Attention::model_default(false, true), Attention::Sdpa);
+        assert_eq!(Attention::model_default(false, false), Attention::Eager);
+        assert_eq!(Attention::model_default(true, false), Attention::Sdpa);
+    }
+
+    #[test]
     fn openvla_specs_parse_in_any_option_order_and_print_back() {
         let dir = std::path::PathBuf::from("/ckpt/openvla-7b");
         let cases = [
@@ -864,6 +918,7 @@ mod tests {
                 batch,
                 quant: Quantization::None,
                 devices: Vec::new(),
+                attention: None,
             };
             let expected = PolicySpec::OpenVla(options.clone());
             assert_eq!(p, expected, "{text}");

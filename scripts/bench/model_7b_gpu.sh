@@ -16,8 +16,8 @@
 #           stripped and xz-compressed;
 #   OUT:    python.json, rust-<attention>.json and the log;
 #   BATCHES: default 1,8,32;
-#   ATTENTIONS: the Rust side's passes, each `model` (the model's own: eager for OpenVLA, SDPA for
-#           OFT), `eager` or `sdpa`; default `model`.
+#   ATTENTIONS: the Rust side's passes, each `model` (the model's own: SDPA on a GPU, for both
+#           models since 2026-11-27), `eager` or `sdpa`; default `model`.
 # The machine needs python3 with torch 2.11 (the libtorch tch links) and its CUDA libraries.
 set -euo pipefail
 model=$1; wheels=$(realpath "$2"); bench=$(realpath "$3"); out=$(realpath -m "$4"); batches=${5:-1,8,32}

@@ -163,18 +163,7 @@ impl std::str::FromStr for Fusion {
     }
 }
 
-/// Which of transformers' attention implementations the forward reproduces. In fp32 on a CPU they
-/// agree to ~1e-6; in bf16 on a GPU each is the arithmetic of its own kernels, and SDPA's fused
-/// kernels (flash or memory-efficient attention) also cost far less time and memory on long
-/// sequences.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Attention {
-    /// `softmax(q kᵀ / √d + mask) v` in separate kernels, the softmax in f32 (`attn_implementation="eager"`).
-    Eager,
-    /// `torch.nn.functional.scaled_dot_product_attention` with the same additive mask, or none
-    /// (`attn_implementation="sdpa"`, what openvla-oft's `get_vla` loads).
-    Sdpa,
-}
+pub use crate::placement::Attention;
 
 pub struct Llama {
     cfg: LlamaConfig,
@@ -240,7 +229,7 @@ impl Llama {
         };
         Ok(Llama {
             cfg: cfg.clone(),
-            attention: Attention::Eager,
+            attention: Attention::model_default(false, device.is_cuda()),
             fusion: if device.is_cuda() { Fusion::ALL } else { Fusion::NONE },
             embed,
             layers,

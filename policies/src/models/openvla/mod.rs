@@ -144,8 +144,8 @@ impl OpenVlaModel {
         &self.config
     }
 
-    /// The language model's attention implementation: eager by default, as the parity reference
-    /// runs it (see [`Attention`]).
+    /// The language model's attention implementation ([`Attention`]; by default SDPA on a GPU,
+    /// as the published loop's flash attention, and eager on a CPU, as the parity reference).
     pub fn set_attention(&mut self, attention: Attention) {
         self.llm.set_attention(attention);
     }

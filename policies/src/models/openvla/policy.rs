@@ -49,6 +49,11 @@ impl OpenVlaPolicy {
         Ok(OpenVlaPolicy { model, unnorm_key, instruction: String::new() })
     }
 
+    /// The language model's attention implementation (the spec's `attention=`).
+    pub fn set_attention(&mut self, attention: super::Attention) {
+        self.model.set_attention(attention);
+    }
+
     /// Identity for the run manifest, from the checkpoint's files without loading its weights
     /// (once per run, at its start; each worker then loads the model itself). Checks the key.
     pub fn identity_of(
@@ -142,6 +147,11 @@ impl OpenVlaBatchModel {
     ) -> Result<Self, PolicyError> {
         let OpenVlaPolicy { model, unnorm_key, .. } = OpenVlaPolicy::load(dir, unnorm_key, device, quant)?;
         Ok(OpenVlaBatchModel { model, unnorm_key })
+    }
+
+    /// The language model's attention implementation (the spec's `attention=`).
+    pub fn set_attention(&mut self, attention: super::Attention) {
+        self.model.set_attention(attention);
     }
 }
 

@@ -327,7 +327,7 @@ impl OftModel {
         let proprio_stats = proprio_stats(dir)?;
         let mut base = OpenVlaModel::load_quantized(dir, device, kind, quant)?;
         // openvla-oft's get_vla loads transformers' SDPA attention (its fork makes it bidirectional)
-        base.set_attention(super::Attention::Sdpa);
+        base.set_attention(super::Attention::model_default(true, device.is_cuda()));
         let hidden = base.config.text.hidden_size;
         let head = ActionHead::load(&mut Component::load(&files.action_head, device, kind)?, hidden)?;
         let proprio = ProprioProjector::load(&mut Component::load(&files.proprio_projector, device, kind)?, hidden)?;

@@ -90,6 +90,11 @@ impl OftPolicy {
         Ok(OftPolicy { model, unnorm_key, instruction: String::new(), chunker: ActionChunker::new(NUM_ACTIONS_CHUNK) })
     }
 
+    /// The backbone's attention implementation (the spec's `attention=`).
+    pub fn set_attention(&mut self, attention: crate::models::openvla::Attention) {
+        self.model.set_attention(attention);
+    }
+
     /// Identity for the run manifest from the checkpoint's files, without loading its weights (at
     /// the run's start): a bad directory, a missing head file or a wrong key fails here, before
     /// any episode.
@@ -173,6 +178,11 @@ impl OftBatchModel {
     ) -> Result<Self, PolicyError> {
         let OftPolicy { model, unnorm_key, .. } = OftPolicy::load(dir, unnorm_key, device, quant)?;
         Ok(OftBatchModel { model, unnorm_key })
+    }
+
+    /// The backbone's attention implementation (the spec's `attention=`).
+    pub fn set_attention(&mut self, attention: crate::models::openvla::Attention) {
+        self.model.set_attention(attention);
     }
 }
 

@@ -50,6 +50,18 @@ fn an_openvla_checkpoint_runs_through_the_pipeline() {
     assert!(identity.contains("jpeg95") && identity.contains("libero_spatial_no_noops"), "{identity}");
     // the attention the model ran: eager on a CPU unless the spec says otherwise
     assert!(identity.contains("attention") && identity.contains("eager: softmax"), "{identity}");
+
+    // `&attention=sdpa` (the GPU's default) runs on a CPU too, stores the actions eager stores
+    // (f32, where the two agree to ~1e-6), and the manifest says which attention ran
+    let sdpa = d.join("sdpa");
+    let sdpa_policy = format!("{policy}&attention=sdpa");
+    ok(pipeline(&["run", s, "--out", sdpa.to_str().unwrap(), "--policy", &sdpa_policy, "--max-steps", "3"]));
+    let actions = |run: &std::path::Path| {
+        sql_rows(run, "SELECT policy_step, action FROM steps WHERE policy_step IS NOT NULL ORDER BY policy_step", &[])
+    };
+    assert_eq!(actions(&sdpa), actions(&run));
+    let identity = sql_rows(&sdpa, "SELECT policy_identity FROM manifest", &[]).concat().join(",");
+    assert!(identity.contains("sdpa: torch") && !identity.contains("eager: softmax"), "{identity}");
 }
 
 /// `&batch=4` with 4 workers: the episodes' queries share forwards (prompts of different lengths,

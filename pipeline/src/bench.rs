@@ -212,7 +212,7 @@ fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
 /// context (on the EGL devices in turn, as a run's workers'), each its own env of one task.
 fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     use libero_sim::gl::GlContext;
-    use libero_sim::gl_thread::{GlThread, OnGlThread};
+    use libero_sim::gl_thread::{GlThread, GlThreads, OnGlThread};
     use libero_sim::render::{RenderOptions, SceneRenderer};
     let suite = *args.suites.first().context("--suites is empty")?;
     let bundle = set.load(suite, 0)?;
@@ -257,7 +257,7 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
                     }
                     let thread = GlThread::for_worker()?;
                     let device = format!("{:?}", thread.device().map(|d| (d.index, d.cuda)));
-                    let shared = thread.is_shared();
+                    let shared = GlThreads::from_env()?.shared_on(thread.device());
                     // SAFETY: the env and the renderer are used on the GL thread while this one waits.
                     let mut renderer =
                         unsafe { OnGlThread::make(thread, |gl| env.renderer(gl.clone(), RenderOptions::default()))? };

@@ -545,12 +545,16 @@ fn load_openvla(o: &CheckpointOptions, spec: &str) -> Result<Box<dyn Policy>, Po
     match o.batch {
         None => {
             let mut policy = OpenVlaPolicy::load(dir, key.clone(), None, quant)?;
-            o.attention.inspect(|&a| policy.set_attention(a));
+            if let Some(a) = o.attention {
+                policy.set_attention(a);
+            }
             Ok(Box::new(policy))
         }
         Some(n) => batched(spec, n, &o.replica_devices(), "openvla", |device| {
             let mut model = OpenVlaBatchModel::load(dir, key.clone(), device, quant)?;
-            o.attention.inspect(|&a| model.set_attention(a));
+            if let Some(a) = o.attention {
+                model.set_attention(a);
+            }
             Ok(model)
         }),
     }
@@ -563,12 +567,16 @@ fn load_oft(o: &CheckpointOptions, spec: &str) -> Result<Box<dyn Policy>, Policy
     match o.batch {
         None => {
             let mut policy = OftPolicy::load(dir, key.clone(), None, quant)?;
-            o.attention.inspect(|&a| policy.set_attention(a));
+            if let Some(a) = o.attention {
+                policy.set_attention(a);
+            }
             Ok(Box::new(policy))
         }
         Some(n) => batched(spec, n, &o.replica_devices(), "oft", |device| {
             let mut model = OftBatchModel::load(dir, key.clone(), device, quant)?;
-            o.attention.inspect(|&a| model.set_attention(a));
+            if let Some(a) = o.attention {
+                model.set_attention(a);
+            }
             Ok(model)
         }),
     }

@@ -47,8 +47,6 @@ pub struct GlThread {
     /// The job the GL thread is running: where it was handed over, and since when. A worker that
     /// has waited [`WAIT_WARNING`] says so and names it, so a stuck render is found, not guessed.
     running: Arc<Mutex<Option<(&'static Location<'static>, Instant)>>>,
-    /// Whether it renders for all the workers of the process on its device.
-    shared: bool,
 }
 
 /// How long a worker waits for the GL thread before it says what the GL thread is doing (and
@@ -110,10 +108,6 @@ impl GlThread {
     /// Start a thread with a new GL context on `device` (`None`: Mesa's surfaceless platform).
     /// The thread ends when the last handle is dropped.
     pub fn start(device: Option<&DeviceInfo>) -> Result<Arc<GlThread>, SimError> {
-        GlThread::spawn(device).map(Arc::new)
-    }
-
-    fn spawn(device: Option<&DeviceInfo>) -> Result<GlThread, SimError> {
         let (jobs, queue) = channel::<Job>();
         let (ready, started) = sync_channel(1);
         let device = device.cloned();
@@ -138,7 +132,7 @@ impl GlThread {
             .map_err(|e| SimError::Other(format!("cannot start a GL thread: {e}")))?;
         let device =
             started.recv().map_err(|_| SimError::Other("the GL thread ended while making its context".into()))??;
-        Ok(GlThread { jobs, device, thread: handle.thread().id(), running: Arc::default(), shared: false })
+        Ok(Arc::new(GlThread { jobs, device, thread: handle.thread().id(), running: Arc::default() }))
     }
 
     /// The GL thread a rollout worker renders on, on the device [`crate::gl::next_device`] gives
@@ -156,14 +150,9 @@ impl GlThread {
         if let Some(thread) = map.get(&key) {
             return Ok(thread.clone());
         }
-        let thread = Arc::new(GlThread { shared: true, ..GlThread::spawn(device.as_ref())? });
+        let thread = GlThread::start(device.as_ref())?;
         map.insert(key, thread.clone());
         Ok(thread)
-    }
-
-    /// Whether it renders for all the workers of the process on its device ([`GlThreads`]).
-    pub fn is_shared(&self) -> bool {
-        self.shared
     }
 
     /// The EGL device its context is on.

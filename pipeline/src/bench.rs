@@ -290,7 +290,7 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     let how = if args.context_per_thread {
         "a GL context each, on the thread itself"
     } else if shared {
-        "through the GPU's one shared GL thread"
+        "through the process's one shared GL thread"
     } else {
         "a GL thread each"
     };

@@ -1,6 +1,6 @@
-//! GL contexts as threads that render for the rollout workers: one shared GL thread per GPU for
-//! all the workers of the process (the default on hardware devices), or a GL thread of its own for
-//! each worker (the default on Mesa's software device); [`GlThreads`], `LIBERO_GL_THREADS`.
+//! GL contexts as threads that render for the rollout workers: one shared GL thread, on one GPU,
+//! for all the workers of the process (the default on hardware devices), or a GL thread of its own
+//! for each worker (the default on Mesa's software device); [`GlThreads`], `LIBERO_GL_THREADS`.
 //!
 //! Why a shared thread on a GPU: on the NVIDIA driver a process's GL contexts do not render side
 //! by side, they get in each other's way (`data/benchmarks/gpu-render-threads-2026-11-27`,
@@ -11,6 +11,13 @@
 //! an H100, against 40 for 16 threads with a context each, every thread's frames bit for bit those
 //! of a context of its own; a run's 64 workers made 40.9 OpenVLA steps/s through it against 31.6
 //! with a context each (`data/benchmarks/gpu-gl-threads-h100-2026-11-27`).
+//!
+//! Why one thread for the process, not one per GPU: two shared GL threads of one process, on two
+//! H100s, rendered 65 camera pairs/s in all with 64 worker threads, against 282 and 288 pairs/s
+//! for one thread on either GPU; a run with replicas on both GPUs made 80.9 OpenVLA steps/s
+//! with its renders through one thread, 73.3 through a thread per GPU
+//! (`data/benchmarks/gpu-two-h100-one-gl-thread-2026-11-27`). The driver serialises a process's
+//! contexts whichever GPUs they are on; one thread keeps a single context busy instead.
 //!
 //! On Mesa's software device (llvmpipe: CPU machines, CI) renders are CPU work that contexts in
 //! separate threads do in parallel: a thread each is right there.
@@ -24,7 +31,6 @@
 use crate::SimError;
 use crate::gl::{DeviceInfo, GlContext};
 use std::cell::RefCell;
-use std::collections::HashMap;
 use std::panic::{AssertUnwindSafe, Location, catch_unwind, resume_unwind};
 use std::rc::Rc;
 use std::sync::mpsc::{RecvTimeoutError, Sender, channel, sync_channel};
@@ -68,7 +74,8 @@ pub const GL_THREADS: &str = "LIBERO_GL_THREADS";
 pub enum GlThreads {
     /// A GL thread for each worker.
     PerWorker,
-    /// One GL thread per device for all the workers of the process.
+    /// One GL thread for all the workers of the process, on the device its first worker's context
+    /// would take (a GPU without a model where there is one).
     Shared,
     /// The default: shared on a hardware device (a GPU's contexts slow each other down), a thread
     /// each on Mesa's software device (its contexts render on the CPU's cores side by side).
@@ -84,8 +91,8 @@ impl GlThreads {
             Ok("per-worker") => Ok(GlThreads::PerWorker),
             Ok("auto") | Err(_) => Ok(GlThreads::Auto),
             Ok(other) => Err(SimError::Other(format!(
-                "{GL_THREADS}={other:?} is not a GL thread choice: set it to shared (one GL thread per GPU for all \
-                 workers), per-worker (a GL thread each) or auto (shared on GPUs, per-worker on the CPU: the default), \
+                "{GL_THREADS}={other:?} is not a GL thread choice: set it to shared (one GL thread for all workers), \
+                 per-worker (a GL thread each) or auto (shared on GPUs, per-worker on the CPU: the default), \
                  or unset it"
             ))),
         }
@@ -101,8 +108,8 @@ impl GlThreads {
     }
 }
 
-/// The process's shared GL thread of each EGL device (`None`: the surfaceless platform).
-static BY_DEVICE: Mutex<Option<HashMap<Option<usize>, Arc<GlThread>>>> = Mutex::new(None);
+/// The process's shared GL thread, once a worker has started it.
+static SHARED: Mutex<Option<Arc<GlThread>>> = Mutex::new(None);
 
 impl GlThread {
     /// Start a thread with a new GL context on `device` (`None`: Mesa's surfaceless platform).
@@ -135,23 +142,20 @@ impl GlThread {
         Ok(Arc::new(GlThread { jobs, device, thread: handle.thread().id(), running: Arc::default() }))
     }
 
-    /// The GL thread a rollout worker renders on, on the device [`crate::gl::next_device`] gives
-    /// it: a thread of its own, or, where [`GlThreads`] shares them, the device's one thread for
-    /// the whole process (started on first use).
+    /// The GL thread a rollout worker renders on: where [`GlThreads`] shares them, the process's
+    /// one thread (started on first use, on the device [`crate::gl::next_device`] gives it), else a
+    /// thread of its own on the device `next_device` gives it.
     pub fn for_worker() -> Result<Arc<GlThread>, SimError> {
         let choice = GlThreads::from_env()?;
-        let device = crate::gl::next_device()?;
-        if !choice.shared_on(device.as_ref()) {
-            return GlThread::start(device.as_ref());
-        }
-        let key = device.as_ref().map(|d| d.index);
-        let mut map = BY_DEVICE.lock().expect("GL threads");
-        let map = map.get_or_insert_with(HashMap::new);
-        if let Some(thread) = map.get(&key) {
+        let mut shared = SHARED.lock().expect("the shared GL thread");
+        if let Some(thread) = shared.as_ref().filter(|t| choice.shared_on(t.device())) {
             return Ok(thread.clone());
         }
+        let device = crate::gl::next_device()?;
         let thread = GlThread::start(device.as_ref())?;
-        map.insert(key, thread.clone());
+        if choice.shared_on(device.as_ref()) {
+            *shared = Some(thread.clone());
+        }
         Ok(thread)
     }
 
@@ -260,7 +264,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn by_default_workers_share_a_gpus_gl_thread_and_get_one_each_on_the_cpu() {
+    fn by_default_workers_share_the_process_gl_thread_on_a_gpu_and_get_one_each_on_the_cpu() {
         let device = |software| DeviceInfo { index: 0, software, drm_file: None, cuda: None };
         let (gpu, mesa) = (device(false), device(true));
         assert!(GlThreads::Auto.shared_on(Some(&gpu)));

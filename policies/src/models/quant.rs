@@ -11,7 +11,8 @@
 //! layout is opaque, so the resident weight is plain nibbles, repacked per call (a pass over
 //! half a byte per weight).
 //!
-//! The quantisation itself runs where the weight is (the GPU at load time), in f32.
+//! The quantisation itself runs where the weight is (the GPU at load time), in f32; int8's a block
+//! of rows at a time ([`INT8_QUANTIZE_BLOCK`]).
 
 use crate::placement::Quantization;
 use tch::{Device, Kind, Tensor};
@@ -26,6 +27,17 @@ pub const INT4_GROUPS: [i64; 3] = [128, 64, 32];
 /// for a few rows; with 16 the decode steps of a 32-episode batch dequantised and took 1.3 s per
 /// call instead of bf16's 0.43, `data/benchmarks/gpu-quant-h100-2026-11-26`).
 pub const INT4_TINYGEMM_MAX_ROWS: i64 = 64;
+
+/// Most weights int8 quantises at once: a block of a layer's rows (levels are per row or per group
+/// of a row's inputs, so blocks quantise as the whole layer does). The f32 temporaries are a few
+/// copies of the block (64 MB each at this size) rather than of the layer (180 MB for each of
+/// Llama-2-7B's MLP projections), and the caching allocator keeps what the load's largest
+/// temporaries took. OpenVLA-7B int8's peak GPU memory at one episode went from 9,707 MiB (whole
+/// layers, 2026-11-26) to 9,229 MiB in blocks (2026-11-27, another machine of the same kind).
+/// int4 quantises whole layers: in blocks its peak went from 5,989 to 6,461 MiB in the same two
+/// measurements (`data/benchmarks/gpu-two-h100-one-gl-thread-2026-11-27`). Neither pair ran on
+/// one machine: each path stays as measured lower until an A/B on one machine says otherwise.
+pub const INT8_QUANTIZE_BLOCK: i64 = 1 << 24;
 
 /// The weight of a linear layer `[out, in]` (no bias: callers add theirs).
 pub enum Linear {
@@ -49,14 +61,32 @@ pub enum Linear {
 impl Linear {
     /// `weight` `[out, in]` (already on its device, in the model's dtype) stored as `quant` asks.
     pub fn new(weight: Tensor, quant: Quantization) -> Linear {
-        match quant {
-            Quantization::None => Linear::Dense(weight),
-            Quantization::Int8 => int8(&weight),
-            Quantization::Int4 => match INT4_GROUPS.into_iter().find(|g| weight.size()[1] % g == 0) {
-                Some(group) => int4(&weight, group),
-                None => int8(&weight),
+        let block = match quant {
+            Quantization::Int8 => INT8_QUANTIZE_BLOCK,
+            _ => i64::MAX,
+        };
+        Self::quantized_in_blocks(weight, quant, block)
+    }
+
+    /// `weight` stored as `quant` asks, quantising `block` weights (whole rows, at least one) at a
+    /// time.
+    fn quantized_in_blocks(weight: Tensor, quant: Quantization, block: i64) -> Linear {
+        let quantize: fn(&Tensor) -> Linear = match quant {
+            Quantization::None => return Linear::Dense(weight),
+            Quantization::Int8 => int8,
+            Quantization::Int4 => |w| match INT4_GROUPS.into_iter().find(|g| w.size()[1] % g == 0) {
+                Some(group) => int4(w, group),
+                None => int8(w),
             },
+        };
+        let (out, inputs) = (weight.size()[0], weight.size()[1]);
+        let rows = (block / inputs).max(1);
+        if rows >= out {
+            return quantize(&weight);
         }
+        let blocks =
+            (0..out).step_by(rows as usize).map(|start| quantize(&weight.narrow(0, start, rows.min(out - start))));
+        Linear::stack(blocks.collect()).expect("the blocks of one layer are stored alike")
     }
 
     /// `x · wᵀ (+ bias)`, `x` `[..., in]` in the model's dtype.
@@ -318,6 +348,22 @@ mod tests {
                 - 1.0),
         );
         assert!(diff < 1e-5, "int4 product vs dequantised weight: {diff}");
+    }
+
+    #[test]
+    fn a_layer_quantised_in_blocks_of_rows_is_the_layer_quantised_whole() {
+        for quant in [Quantization::Int8, Quantization::Int4] {
+            let w = random(50, 256, 10);
+            let whole = Linear::quantized_in_blocks(w.shallow_clone(), quant, 1 << 20);
+            // blocks of 7 rows (the last one 1 row), and of one row
+            for block in [7 * 256, 1] {
+                let blocks = Linear::quantized_in_blocks(w.shallow_clone(), quant, block);
+                assert_eq!(blocks.size(), [50, 256]);
+                assert_eq!(blocks.resident_bytes(), whole.resident_bytes(), "{quant:?}");
+                let diff = max_abs(&(blocks.dequantized(Kind::Float) - whole.dequantized(Kind::Float)));
+                assert_eq!(diff, 0.0, "{quant:?}, block {block}");
+            }
+        }
     }
 
     #[test]

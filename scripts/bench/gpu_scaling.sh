@@ -9,6 +9,10 @@
 #                  attention): ms per call, actions/s, the fraction of the compute bound; int8's
 #                  and int4's tokens against bf16 on 32 random inputs; int4's tinygemm path
 #                  against its dequantised weight.
+#   memory         only quant's first step: the GPU memory one episode needs per weight format
+#                  (QUANTS), the bench at B = 1 in a process of its own; with ALLOC=expandable also
+#                  with PYTORCH_CUDA_ALLOC_CONF=expandable_segments:True (the caching allocator
+#                  grows its segments instead of adding new ones: less memory reserved and unused).
 #   fused          the language model's launch-saving kernels (`Fusion`, the bench's --fusion), bf16,
 #                  in one process per attention: none (transformers' operations one by one), each
 #                  part alone, and all, SDPA at B = 1, 8, 32, 64 and eager (OpenVLA's own) at
@@ -47,17 +51,27 @@ with_memory() {
   echo "$label peak_mib=$peak idle_mib=$idle model_mib=$((peak - idle))" | tee -a "$out/memory.txt"
 }
 
+# the memory a card needs for one episode (B = 1) with weights stored as $1, in a process of its own
+memory_b1() {
+  with_memory "b1-$1${2:+-$2}" "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --quant "$1" \
+    --batch 1 --warmup 1 --iters 3 > "$out/memory-b1-$1${2:+-$2}.log" 2>&1
+}
+
 for part in "$@"; do
   IFS=: read -r what a b <<< "$part"
   case $what in
     quant)
       for q in ${QUANTS:-none int8 int4}; do
-        # the memory a card needs for one episode (B = 1), in a process of its own
-        with_memory "b1-$q" "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --quant $q \
-          --batch 1 --warmup 1 --iters 3 > "$out/memory-b1-$q.log" 2>&1
+        memory_b1 $q
         agree=(); [ $q = none ] || agree=(--agreement)
         "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --quant $q \
           --batch 1,8,32,64 --warmup 3 --iters 10 "${agree[@]}" --json "$out/quant-$q.json" 2>&1 | tee -a "$out/quant.log"
+      done ;;
+    memory)
+      for q in ${QUANTS:-none int8 int4}; do
+        memory_b1 $q
+        [ "${ALLOC:-}" = expandable ] || continue
+        PYTORCH_CUDA_ALLOC_CONF=expandable_segments:True memory_b1 $q expandable
       done ;;
     fused)
       "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --fusion none/norm/qkv/gate_up/rotary_fma/static_cache/rotary_kernel/norm_kernel/swiglu_kernel/all \
@@ -82,6 +96,6 @@ for part in "$@"; do
         echo "::: compare first-bf16 first-$r" | tee -a "$out/episodes.log"
         "$P" compare "$out/first-bf16" "$out/first-$r" --out "$out/compare-$r" 2>&1 | tail -3 | tee -a "$out/episodes.log"
       done ;;
-    *) echo "unknown part $part (quant, fused, serve:W:S, episodes:T)" >&2; exit 2 ;;
+    *) echo "unknown part $part (quant, memory, fused, serve:W:S, episodes:T)" >&2; exit 2 ;;
   esac
 done

@@ -196,6 +196,87 @@ fn workers_sharing_one_gl_thread_get_the_frames_of_a_context_each() {
     assert!(frames[0].0[0] != frames[1].0[0]);
 }
 
+/// Renderers of one scene on one GL context share its upload (`SceneRenderer::shares_upload_with`:
+/// as the workers of one task do on a GPU's shared GL thread), and each draws, bit for bit, what a
+/// renderer with an upload of its own draws: two envs of one task, the second with an episode's
+/// edits (lights, an object's colour, the camera pose), their renders interleaved. Another suite's
+/// scene (other meshes and textures), or another buffer size, gets an upload of its own.
+#[test]
+fn renderers_of_one_scene_share_its_upload_and_draw_what_their_own_upload_draws() {
+    use libero_sim::env::{Appearance, EpisodeEdits, Lighting};
+    use libero_sim::viewpoint::CameraPose;
+    let set = bundles();
+    let bundle = set.load("libero_spatial".parse().unwrap(), 1).unwrap();
+    let other = set.load("libero_object".parse().unwrap(), 0).unwrap();
+    let options = RenderOptions { max_width: 128, max_height: 128, ..Default::default() };
+    let pair = |env: &mut LiberoEnv, r: &mut libero_sim::render::SceneRenderer| {
+        ["agentview", "robot0_eye_in_hand"].map(|c| env.render(r, c, 128, 128).unwrap().rgb)
+    };
+    let envs = || {
+        let (mut plain, mut edited) = (LiberoEnv::new(&bundle).unwrap(), LiberoEnv::new(&bundle).unwrap());
+        let object = edited.object_names().next().expect("a scene with objects").to_string();
+        edited
+            .set_episode_edits(EpisodeEdits {
+                lighting: Some(Lighting { ambient: Some(0.6), diffuse: Some(0.3), specular: Some(0.1) }),
+                appearance: Some(Appearance { objects: vec![object], rgba: [0.9, 0.1, 0.1, 1.0] }),
+                agentview: Some(CameraPose { pos: [0.9, 0.1, 1.5], quat: [0.65, 0.28, 0.28, 0.65] }),
+                ..Default::default()
+            })
+            .unwrap();
+        plain.reset(0, 0).unwrap();
+        edited.reset(3, 0).unwrap();
+        [plain, edited]
+    };
+    let step = |env: &mut LiberoEnv| env.step([0.3, 0.0, 0.1, 0.0, 0.0, 0.0, -1.0]).unwrap();
+    // one GL context, both renderers on it, renders interleaved
+    let gl = Rc::new(GlContext::new().unwrap());
+    let [mut plain, mut edited] = envs();
+    let mut r_plain = plain.renderer(gl.clone(), options).unwrap();
+    let mut r_edited = edited.renderer(gl.clone(), options).unwrap();
+    assert!(r_plain.shares_upload_with(&r_edited), "renderers of one scene on one GL context uploaded it twice");
+    let mut shared = Vec::new();
+    for _ in 0..2 {
+        shared.push(pair(&mut plain, &mut r_plain));
+        shared.push(pair(&mut edited, &mut r_edited));
+        step(&mut plain);
+        step(&mut edited);
+    }
+    let r_other = LiberoEnv::new(&other).unwrap().renderer(gl.clone(), options).unwrap();
+    assert!(!r_other.shares_upload_with(&r_plain), "another suite's scene shared this one's upload");
+    // (LIBERO's scenes make a 640x480 buffer; a renderer asking for less gets that one)
+    let larger = RenderOptions { max_width: 1024, max_height: 1024, ..Default::default() };
+    let r_larger = LiberoEnv::new(&bundle).unwrap().renderer(gl.clone(), larger).unwrap();
+    assert!(!r_larger.shares_upload_with(&r_plain), "a larger buffer shared a smaller one's upload");
+    // each env on a GL context (and a thread) of its own
+    let own: Vec<Vec<[Vec<u8>; 2]>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = envs()
+            .into_iter()
+            .map(|mut env| {
+                scope.spawn(move || {
+                    let mut r = env.renderer(Rc::new(GlContext::new().unwrap()), options).unwrap();
+                    (0..2)
+                        .map(|_| {
+                            let frames = pair(&mut env, &mut r);
+                            step(&mut env);
+                            frames
+                        })
+                        .collect()
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    for (i, frames) in shared.iter().enumerate() {
+        let (env, at) = (i % 2, i / 2);
+        for (camera, (a, b)) in frames.iter().zip(&own[env][at]).enumerate() {
+            let n = a.iter().zip(b).filter(|(x, y)| x != y).count();
+            assert!(n == 0, "env {env}, step {at}, camera {camera}: {n} bytes differ from its own upload's frame");
+        }
+    }
+    // the two envs' pictures differ, so each renderer drew its own scene state
+    assert!(shared[0][0] != shared[1][0]);
+}
+
 /// A renderer kept across a task's episodes (as a run's worker keeps its env's, so the scene is
 /// uploaded once per task, not once per episode) draws each episode's frames bit for bit as a
 /// renderer made for that episode: after a reset to another init state, and with an episode's
@@ -219,8 +300,18 @@ fn a_renderer_kept_across_episodes_draws_what_a_new_one_draws() {
         env.set_episode_edits(edits).unwrap();
         env.reset(init, 0).unwrap();
         for step in 0..2 {
-            let mut new = env.renderer(gl.clone(), options).unwrap();
-            let fresh = pair(&mut env, &mut new);
+            // a new renderer with an upload of its own: on a GL context of its own, on a thread of
+            // its own (on this GL context it would share `kept`'s upload)
+            let fresh = std::thread::scope(|scope| {
+                let env = &mut env;
+                scope
+                    .spawn(move || {
+                        let mut new = env.renderer(Rc::new(GlContext::new().unwrap()), options).unwrap();
+                        pair(env, &mut new)
+                    })
+                    .join()
+                    .unwrap()
+            });
             let again = pair(&mut env, &mut kept);
             for (camera, (a, b)) in again.iter().zip(&fresh).enumerate() {
                 let n = a.iter().zip(b).filter(|(x, y)| x != y).count();

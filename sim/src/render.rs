@@ -27,8 +27,11 @@ use crate::SimError;
 use crate::gl::GlContext;
 use mujoco_rs::mujoco_c as c;
 use mujoco_rs::prelude::MjModel;
+use std::cell::{RefCell, UnsafeCell};
+use std::collections::HashMap;
 use std::ffi::CString;
-use std::rc::Rc;
+use std::hash::{DefaultHasher, Hash, Hasher};
+use std::rc::{Rc, Weak};
 
 /// The image size the published evaluations render at.
 pub const DEFAULT_SIZE: u32 = 256;
@@ -208,12 +211,76 @@ pub struct RenderOptions {
     pub max_height: u32,
 }
 
-/// MuJoCo's render context and scene for one compiled model, on this thread's GL context.
+/// MuJoCo's render context (`mjrContext`: a model's meshes and textures uploaded, fonts, the
+/// offscreen buffer) on one GL context, shared by the [`SceneRenderer`]s of that GL context whose
+/// models upload the same ([`upload_key`]).
 ///
-/// Made per (thread, task model): it uploads the model's meshes and textures (~0.5–1 s on llvmpipe).
+/// Why shared: with one GL thread for all of a process's workers (`crate::gl_thread`), each
+/// worker's renderer uploaded its task's scene again, one upload after another on that thread: on
+/// two H100s, 64 workers' first renders of an episode waited 8.4 s on average, and the GPU with the
+/// renders held 59 GB against 24.5 on the other, which had the same model replica and no renders
+/// (`data/benchmarks/gpu-two-h100-one-gl-thread-2026-11-27`). Sharing is safe
+/// because a render only reads the context: what an episode changes (lights, colours, camera
+/// poses, bodies) reaches the picture through the renderer's own `mjvScene`, and renders of one
+/// GL context run one at a time, each binding the buffer, drawing and reading back in turn.
+struct RenderContext {
+    con: UnsafeCell<c::mjrContext>,
+    // Dropped after `con` is freed (`Drop`): MuJoCo's context needs the GL context alive and current.
+    _gl: Rc<GlContext>,
+}
+
+impl Drop for RenderContext {
+    fn drop(&mut self) {
+        unsafe { c::mjr_freeContext(self.con.get()) };
+    }
+}
+
+thread_local! {
+    /// The render contexts made on this thread, by (GL context, [`upload_key`]); an entry whose
+    /// renderers are all gone no longer upgrades and is replaced.
+    static UPLOADED: RefCell<HashMap<(*const GlContext, u64), Weak<RenderContext>>> = RefCell::new(HashMap::new());
+}
+
+/// A hash of everything `mjr_makeContext` reads from `model`: textures (with their colour spaces),
+/// meshes, height fields, the offscreen buffer's size and samples, shadow and fog settings, the
+/// built-in shapes' resolution. Models with skins or flexes (none in LIBERO or ALOHA-sim) get a
+/// key of their own: their uploads are not hashed here, so they are never shared.
+fn upload_key(model: &MjModel) -> u64 {
+    let m = model.ffi();
+    let mut h = DefaultHasher::new();
+    if m.nskin > 0 || m.nflex > 0 {
+        (model as *const MjModel as usize).hash(&mut h);
+    }
+    (m.ntex, m.nmesh, m.nhfield).hash(&mut h);
+    model.tex_type().iter().map(|&t| t as i32).collect::<Vec<_>>().hash(&mut h);
+    model.tex_colorspace().iter().map(|&t| t as i32).collect::<Vec<_>>().hash(&mut h);
+    (model.tex_height(), model.tex_width(), model.tex_nchannel(), model.tex_adr(), model.tex_data()).hash(&mut h);
+    (model.mesh_vertadr(), model.mesh_vertnum(), model.mesh_faceadr(), model.mesh_facenum()).hash(&mut h);
+    (model.mesh_normaladr(), model.mesh_normalnum(), model.mesh_texcoordadr(), model.mesh_texcoordnum()).hash(&mut h);
+    (model.mesh_face(), model.mesh_facenormal(), model.mesh_facetexcoord()).hash(&mut h);
+    (model.mesh_graphadr(), model.mesh_graph()).hash(&mut h);
+    let floats = |h: &mut DefaultHasher, xs: &[f32]| xs.iter().for_each(|x| x.to_bits().hash(h));
+    floats(&mut h, model.mesh_vert().as_flattened());
+    floats(&mut h, model.mesh_normal().as_flattened());
+    floats(&mut h, model.mesh_texcoord().as_flattened());
+    (model.hfield_nrow(), model.hfield_ncol(), model.hfield_adr()).hash(&mut h);
+    floats(&mut h, model.hfield_data());
+    model.hfield_size().as_flattened().iter().for_each(|x| x.to_bits().hash(&mut h));
+    let (g, q, map) = (&m.vis.global, &m.vis.quality, &m.vis.map);
+    (g.offwidth, g.offheight, g.linewidth.to_bits(), q.offsamples, q.shadowsize).hash(&mut h);
+    (q.numslices, q.numstacks, q.numquads).hash(&mut h);
+    [map.fogstart, map.fogend, map.shadowclip, map.shadowscale, map.znear, map.zfar].map(f32::to_bits).hash(&mut h);
+    m.vis.rgba.fog.map(f32::to_bits).hash(&mut h);
+    m.stat.extent.to_bits().hash(&mut h);
+    h.finish()
+}
+
+/// Scene state for one compiled model over a (possibly shared) [`RenderContext`] on this thread's
+/// GL context.
+///
+/// The first renderer of a scene on a GL context uploads its meshes and textures (~0.5–1 s on
+/// llvmpipe); later ones of the same scene on that GL context share the upload.
 pub struct SceneRenderer {
-    // Drop order: the MuJoCo context needs the GL context alive and current.
-    con: Box<c::mjrContext>,
     scn: Box<c::mjvScene>,
     opt: Box<c::mjvOption>,
     pert: Box<c::mjvPerturb>,
@@ -221,11 +288,14 @@ pub struct SceneRenderer {
     cameras: Vec<String>,
     options: RenderOptions,
     buffer: (u32, u32),
-    _gl: Rc<GlContext>,
+    // Last: the scene is freed (`Drop`) before the render context may be.
+    con: Rc<RenderContext>,
 }
 
 impl SceneRenderer {
-    /// Apply the look to `model` (texture colour spaces) and upload it to a new render context.
+    /// Apply the look to `model` (texture colour spaces) and render it on `gl`: on the render
+    /// context of an earlier renderer of the same scene on `gl` while one lives, else on a new one
+    /// with the model uploaded.
     pub fn new(gl: Rc<GlContext>, model: &mut MjModel, options: RenderOptions) -> Result<Self, SimError> {
         options.look.apply(model);
         let m = unsafe { model.ffi_mut() };
@@ -236,20 +306,23 @@ impl SceneRenderer {
         m.vis.global.offheight = m.vis.global.offheight.max(options.max_height as i32);
         let buffer = (m.vis.global.offwidth as u32, m.vis.global.offheight as u32);
         let cameras = (0..m.ncam).map(|i| name_of(model, c::mjtObj::mjOBJ_CAMERA, i)).collect();
+        let key = (Rc::as_ptr(&gl), upload_key(model));
+        let shared = UPLOADED.with(|u| u.borrow().get(&key).and_then(Weak::upgrade));
+        let con = match shared {
+            Some(con) => con,
+            None => {
+                let con = Rc::new(Self::upload(gl, model)?);
+                UPLOADED.with(|u| {
+                    let mut u = u.borrow_mut();
+                    u.retain(|_, weak| weak.strong_count() > 0);
+                    u.insert(key, Rc::downgrade(&con));
+                });
+                con
+            }
+        };
         let m = model.ffi();
         // SAFETY: zeroed structs are what MuJoCo's default functions expect to fill in.
         unsafe {
-            let mut con: Box<c::mjrContext> = Box::new(std::mem::zeroed());
-            c::mjr_defaultContext(&mut *con);
-            c::mjr_makeContext(m, &mut *con, FONT_SCALE);
-            c::mjr_setBuffer(c::mjtFramebuffer::mjFB_OFFSCREEN as i32, &mut *con);
-            if con.currentBuffer != c::mjtFramebuffer::mjFB_OFFSCREEN as i32 {
-                return Err(SimError::NoGl {
-                    detail: "MuJoCo could not make its offscreen framebuffer".into(),
-                    hint: "check that the GL driver supports framebuffer objects (Mesa ≥ 20 or an NVIDIA driver)"
-                        .into(),
-                });
-            }
             let mut scn: Box<c::mjvScene> = Box::new(std::mem::zeroed());
             c::mjv_defaultScene(&mut *scn);
             c::mjv_makeScene(m, &mut *scn, MAX_GEOM);
@@ -270,8 +343,32 @@ impl SceneRenderer {
             pert.skinselect = -1;
             let mut cam: Box<c::mjvCamera> = Box::new(std::mem::zeroed());
             c::mjv_defaultCamera(&mut *cam);
-            Ok(SceneRenderer { con, scn, opt, pert, cam, cameras, options, buffer, _gl: gl })
+            Ok(SceneRenderer { scn, opt, pert, cam, cameras, options, buffer, con })
         }
+    }
+
+    /// A new render context on `gl` with `model`'s meshes and textures uploaded.
+    fn upload(gl: Rc<GlContext>, model: &MjModel) -> Result<RenderContext, SimError> {
+        // SAFETY: a zeroed context is what `mjr_defaultContext` expects to fill in.
+        let context = RenderContext { con: UnsafeCell::new(unsafe { std::mem::zeroed() }), _gl: gl };
+        unsafe {
+            c::mjr_defaultContext(context.con.get());
+            c::mjr_makeContext(model.ffi(), context.con.get(), FONT_SCALE);
+            c::mjr_setBuffer(c::mjtFramebuffer::mjFB_OFFSCREEN as i32, context.con.get());
+            if (*context.con.get()).currentBuffer != c::mjtFramebuffer::mjFB_OFFSCREEN as i32 {
+                return Err(SimError::NoGl {
+                    detail: "MuJoCo could not make its offscreen framebuffer".into(),
+                    hint: "check that the GL driver supports framebuffer objects (Mesa ≥ 20 or an NVIDIA driver)"
+                        .into(),
+                });
+            }
+        }
+        Ok(context)
+    }
+
+    /// Whether `self` and `other` render on one render context (one upload of their scene).
+    pub fn shares_upload_with(&self, other: &SceneRenderer) -> bool {
+        Rc::ptr_eq(&self.con, &other.con)
     }
 
     pub fn options(&self) -> RenderOptions {
@@ -339,7 +436,7 @@ impl SceneRenderer {
                 c::mjtCatBit::mjCAT_ALL as i32,
                 &mut *self.scn,
             );
-            c::mjr_render(rect.ffi(), &mut *self.scn, &*self.con);
+            c::mjr_render(rect.ffi(), &mut *self.scn, self.con.con.get());
         }
         Ok(())
     }
@@ -359,7 +456,7 @@ impl SceneRenderer {
                 rect.ffi(),
                 text.as_ptr(),
                 empty.as_ptr(),
-                &*self.con,
+                self.con.con.get(),
             );
         }
         Ok(())
@@ -368,12 +465,15 @@ impl SceneRenderer {
     /// Make this renderer's offscreen buffer the one GL draws into and reads from.
     ///
     /// Why every time: the GL binding belongs to the GL context, not to MuJoCo's render context.
-    /// Where several renderers share one GL context (`crate::gl_thread`'s shared GL threads, one
-    /// per GPU for all workers), a renderer made or used in between leaves its own buffer bound,
-    /// and a draw without this went into that renderer's buffer: the frame read back was stale
-    /// (`tests/render.rs`, three workers on one GL thread, agentview frames differing entirely).
+    /// Where several renderers share one GL context (`crate::gl_thread`'s shared GL thread for all
+    /// of a process's workers), a renderer of another scene made or used in between leaves its own
+    /// buffer bound, and a draw without this went into that renderer's buffer: the frame read back
+    /// was stale (`tests/render.rs`, three workers on one GL thread, agentview frames differing
+    /// entirely). Renderers of one scene on one GL context share the buffer with the upload
+    /// ([`RenderContext`]): what one draws is read back before another of them draws, since each
+    /// GL-thread job draws and reads in one go.
     fn bind_buffer(&mut self) {
-        unsafe { c::mjr_setBuffer(c::mjtFramebuffer::mjFB_OFFSCREEN as i32, &mut *self.con) };
+        unsafe { c::mjr_setBuffer(c::mjtFramebuffer::mjFB_OFFSCREEN as i32, self.con.con.get()) };
     }
 
     /// Read `rect` of the offscreen buffer back, in the reference orientation.
@@ -381,17 +481,14 @@ impl SceneRenderer {
         self.check_rect(rect)?;
         let mut rgb = vec![0u8; rect.width as usize * rect.height as usize * 3];
         self.bind_buffer();
-        unsafe { c::mjr_readPixels(rgb.as_mut_ptr(), std::ptr::null_mut(), rect.ffi(), &*self.con) };
+        unsafe { c::mjr_readPixels(rgb.as_mut_ptr(), std::ptr::null_mut(), rect.ffi(), self.con.con.get()) };
         Ok(Frame { width: rect.width, height: rect.height, rgb, orientation: Orientation::Reference })
     }
 }
 
 impl Drop for SceneRenderer {
     fn drop(&mut self) {
-        unsafe {
-            c::mjr_freeContext(&mut *self.con);
-            c::mjv_freeScene(&mut *self.scn);
-        }
+        unsafe { c::mjv_freeScene(&mut *self.scn) };
     }
 }
 

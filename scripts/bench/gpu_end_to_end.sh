@@ -11,6 +11,8 @@
 #          libero_spatial's 10 tasks, more options of the policy, e.g. devices=cuda:0,cuda:1 or
 #          quant=int8); default 32:32:4.
 # MAX_STEPS=N caps every episode at N policy steps (default: the suite's cap, 220).
+# ENGINE=ballista://HOST:PORT runs the episodes on that cluster's executors instead of in this
+# process (JOBS is then unused: the executors' slots decide how many run at once).
 # What the machine needs: scripts/bench/gpu_setup.sh. Weights are random (none can be downloaded
 # there): the figures are speed and memory, not success rates.
 set -euo pipefail
@@ -30,7 +32,7 @@ for r in "${runs[@]}"; do
   "$P" --bundles "$work/bundles" specs --suites libero_spatial --trials "$trials" -o "$work/$name.parquet"
   echo "::: $name: start $(date -u +%FT%T.%3NZ)" | tee -a "$out/runs.log"
   "$P" --bundles "$work/bundles" run "$work/$name.parquet" --out "$out/$name" \
-    --policy "openvla:$ckpt?unnorm=libero_spatial_no_noops&batch=$batch${options:+&$options}" --jobs "$jobs" ${MAX_STEPS:+--max-steps "$MAX_STEPS"} 2>&1 | tee "$out/$name.log" | grep -v '^|\|^+' || true
+    --policy "openvla:$ckpt?unnorm=libero_spatial_no_noops&batch=$batch${options:+&$options}" --jobs "$jobs" ${MAX_STEPS:+--max-steps "$MAX_STEPS"} ${ENGINE:+--engine "$ENGINE"} 2>&1 | tee "$out/$name.log" | grep -v '^|\|^+' || true
   echo "::: $name: end $(date -u +%FT%T.%3NZ)" | tee -a "$out/runs.log"
   "$P" --bundles "$work/bundles" bench run --run "$out/$name" --no-rescoring | tee "$out/$name.bench.txt"
 done

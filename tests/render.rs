@@ -142,7 +142,8 @@ fn an_unknown_camera_lists_the_scene_cameras() {
 
 /// Several workers rendering through one shared GL thread (as a run's workers do on a GPU,
 /// `libero_sim::gl_thread`) get, bit for bit, the frames each gets on a GL context of its own:
-/// three threads, three tasks' scenes uploaded to the one context, renders interleaved.
+/// three threads, three suites' scenes (other textures and meshes, so three uploads and three
+/// buffers) on the one context, renders interleaved.
 #[test]
 fn workers_sharing_one_gl_thread_get_the_frames_of_a_context_each() {
     use libero_sim::gl_thread::{GlThread, OnGlThread};
@@ -155,7 +156,8 @@ fn workers_sharing_one_gl_thread_get_the_frames_of_a_context_each() {
             .map(|task| {
                 let (set, shared) = (&set, shared.clone());
                 scope.spawn(move || {
-                    let bundle = set.load("libero_goal".parse().unwrap(), task).unwrap();
+                    let suite = ["libero_goal", "libero_object", "libero_spatial"][task as usize];
+                    let bundle = set.load(suite.parse().unwrap(), task).unwrap();
                     let mut env = LiberoEnv::new(&bundle).unwrap();
                     env.reset(task as usize, 0).unwrap();
                     let options = RenderOptions { max_width: 128, max_height: 128, ..Default::default() };
@@ -199,8 +201,10 @@ fn workers_sharing_one_gl_thread_get_the_frames_of_a_context_each() {
 /// Renderers of one scene on one GL context share its upload (`SceneRenderer::shares_upload_with`:
 /// as the workers of one task do on a GPU's shared GL thread), and each draws, bit for bit, what a
 /// renderer with an upload of its own draws: two envs of one task, the second with an episode's
-/// edits (lights, an object's colour, the camera pose), their renders interleaved. Another suite's
-/// scene (other meshes and textures), or another buffer size, gets an upload of its own.
+/// edits (lights, an object's colour, the camera pose), their renders interleaved with each other's
+/// and another scene's, and the edited one going on alone once the renderer that uploaded the scene
+/// is dropped. Another suite's scene (other meshes and textures), another buffer size or another
+/// look gets an upload of its own; a renderer never reads back what another one drew.
 #[test]
 fn renderers_of_one_scene_share_its_upload_and_draw_what_their_own_upload_draws() {
     use libero_sim::env::{Appearance, EpisodeEdits, Lighting};
@@ -234,19 +238,36 @@ fn renderers_of_one_scene_share_its_upload_and_draw_what_their_own_upload_draws(
     let mut r_plain = plain.renderer(gl.clone(), options).unwrap();
     let mut r_edited = edited.renderer(gl.clone(), options).unwrap();
     assert!(r_plain.shares_upload_with(&r_edited), "renderers of one scene on one GL context uploaded it twice");
-    let mut shared = Vec::new();
-    for _ in 0..2 {
-        shared.push(pair(&mut plain, &mut r_plain));
-        shared.push(pair(&mut edited, &mut r_edited));
-        step(&mut plain);
-        step(&mut edited);
-    }
-    let r_other = LiberoEnv::new(&other).unwrap().renderer(gl.clone(), options).unwrap();
+    let mut env_other = LiberoEnv::new(&other).unwrap();
+    env_other.reset(0, 0).unwrap();
+    let mut r_other = env_other.renderer(gl.clone(), options).unwrap();
     assert!(!r_other.shares_upload_with(&r_plain), "another suite's scene shared this one's upload");
+    let look = RenderOptions { look: Look::Mujoco337, ..options };
+    let r_look = LiberoEnv::new(&other).unwrap().renderer(gl.clone(), look).unwrap();
+    assert!(!r_look.shares_upload_with(&r_other), "another look shared this one's upload");
     // (LIBERO's scenes make a 640x480 buffer; a renderer asking for less gets that one)
     let larger = RenderOptions { max_width: 1024, max_height: 1024, ..Default::default() };
     let r_larger = LiberoEnv::new(&bundle).unwrap().renderer(gl.clone(), larger).unwrap();
     assert!(!r_larger.shares_upload_with(&r_plain), "a larger buffer shared a smaller one's upload");
+    // a renderer reads back only what it drew itself
+    let rect = libero_sim::render::Rect::new(0, 0, 128, 128);
+    let camera = r_plain.camera_id("agentview").unwrap();
+    plain.draw_camera(&mut r_plain, camera, rect).unwrap();
+    edited.draw_camera(&mut r_edited, camera, rect).unwrap();
+    assert!(r_plain.read(rect).is_err(), "a renderer read back what another one drew into their shared buffer");
+    let mut shared = Vec::new();
+    let mut other_frames = Vec::new();
+    for _ in 0..2 {
+        shared.push(pair(&mut plain, &mut r_plain));
+        other_frames.push(pair(&mut env_other, &mut r_other));
+        shared.push(pair(&mut edited, &mut r_edited));
+        step(&mut plain);
+        step(&mut edited);
+    }
+    // the renderer that made the upload gone, the other goes on with it
+    drop(r_plain);
+    shared.push(pair(&mut edited, &mut r_edited));
+    assert!(other_frames[0][0] != shared[0][0], "another scene's renderer drew the first scene");
     // each env on a GL context (and a thread) of its own
     let own: Vec<Vec<[Vec<u8>; 2]>> = std::thread::scope(|scope| {
         let handles: Vec<_> = envs()
@@ -254,7 +275,7 @@ fn renderers_of_one_scene_share_its_upload_and_draw_what_their_own_upload_draws(
             .map(|mut env| {
                 scope.spawn(move || {
                     let mut r = env.renderer(Rc::new(GlContext::new().unwrap()), options).unwrap();
-                    (0..2)
+                    (0..3)
                         .map(|_| {
                             let frames = pair(&mut env, &mut r);
                             step(&mut env);
@@ -266,8 +287,9 @@ fn renderers_of_one_scene_share_its_upload_and_draw_what_their_own_upload_draws(
             .collect();
         handles.into_iter().map(|h| h.join().unwrap()).collect()
     });
+    assert_eq!(shared.len(), 5);
     for (i, frames) in shared.iter().enumerate() {
-        let (env, at) = (i % 2, i / 2);
+        let (env, at) = if i < 4 { (i % 2, i / 2) } else { (1, 2) };
         for (camera, (a, b)) in frames.iter().zip(&own[env][at]).enumerate() {
             let n = a.iter().zip(b).filter(|(x, y)| x != y).count();
             assert!(n == 0, "env {env}, step {at}, camera {camera}: {n} bytes differ from its own upload's frame");

@@ -27,7 +27,7 @@ use crate::SimError;
 use crate::gl::GlContext;
 use mujoco_rs::mujoco_c as c;
 use mujoco_rs::prelude::MjModel;
-use std::cell::{RefCell, UnsafeCell};
+use std::cell::{Cell, RefCell, UnsafeCell};
 use std::collections::HashMap;
 use std::ffi::CString;
 use std::hash::{DefaultHasher, Hash, Hasher};
@@ -225,6 +225,9 @@ pub struct RenderOptions {
 /// GL context run one at a time, each binding the buffer, drawing and reading back in turn.
 struct RenderContext {
     con: UnsafeCell<c::mjrContext>,
+    /// The renderer that drew into the shared buffer last ([`SceneRenderer::id`]): a renderer
+    /// reads back only what it drew itself.
+    last_drawer: Cell<usize>,
     // Dropped after `con` is freed (`Drop`): MuJoCo's context needs the GL context alive and current.
     _gl: Rc<GlContext>,
 }
@@ -236,43 +239,71 @@ impl Drop for RenderContext {
 }
 
 thread_local! {
-    /// The render contexts made on this thread, by (GL context, [`upload_key`]); an entry whose
+    /// The render contexts made on this thread, by (GL context, [`UploadKey`]); an entry whose
     /// renderers are all gone no longer upgrades and is replaced.
     static UPLOADED: RefCell<HashMap<(*const GlContext, u64), Weak<RenderContext>>> = RefCell::new(HashMap::new());
 }
 
-/// A hash of everything `mjr_makeContext` reads from `model`: textures (with their colour spaces),
-/// meshes, height fields, the offscreen buffer's size and samples, shadow and fog settings, the
-/// built-in shapes' resolution. Models with skins or flexes (none in LIBERO or ALOHA-sim) get a
-/// key of their own: their uploads are not hashed here, so they are never shared.
-fn upload_key(model: &MjModel) -> u64 {
+/// What a [`SceneRenderer`] would upload of a model, hashed ([`upload_key`]): renderers with equal
+/// keys on one GL context share one upload. `None` for a model whose upload is never shared.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UploadKey(Option<u64>);
+
+/// `model` prepared for `options` (the look's texture colour spaces, the buffer size and samples;
+/// what [`SceneRenderer::new`] does first) and [`UploadKey`] of it.
+///
+/// Everything `mjr_makeContext` (MuJoCo 3.3.7, `render_context.c`) reads from the model is hashed:
+/// textures with their colour spaces; meshes; height fields; the materials' texture ids, uniform
+/// flags and repeats (the context keeps its own copy); the geoms' types, sizes and materials (the
+/// planes' display lists); the buffer's size and samples, shadow, fog and haze settings and the
+/// built-in shapes' resolution. Models with skins get `None`: their skin buffers are per model.
+///
+/// Why a function of its own: the hash reads every texture (150–300 MB in LIBERO's scenes,
+/// 60–90 ms), so callers that render on a shared GL thread compute it on their own thread first and
+/// hand it to [`SceneRenderer::with_key`], keeping the GL thread for GL work.
+pub fn upload_key(model: &mut MjModel, options: RenderOptions) -> UploadKey {
+    prepare(model, options);
     let m = model.ffi();
-    let mut h = DefaultHasher::new();
-    if m.nskin > 0 || m.nflex > 0 {
-        (model as *const MjModel as usize).hash(&mut h);
+    if m.nskin > 0 {
+        return UploadKey(None);
     }
-    (m.ntex, m.nmesh, m.nhfield).hash(&mut h);
+    fn bytes<T: Copy>(xs: &[T]) -> &[u8] {
+        // SAFETY: plain numbers and arrays of them (no padding), read as the bytes they are
+        unsafe { std::slice::from_raw_parts(xs.as_ptr().cast(), std::mem::size_of_val(xs)) }
+    }
+    let mut h = DefaultHasher::new();
+    (m.ntex, m.nmesh, m.nhfield, m.nmat, m.ngeom).hash(&mut h);
     model.tex_type().iter().map(|&t| t as i32).collect::<Vec<_>>().hash(&mut h);
     model.tex_colorspace().iter().map(|&t| t as i32).collect::<Vec<_>>().hash(&mut h);
     (model.tex_height(), model.tex_width(), model.tex_nchannel(), model.tex_adr(), model.tex_data()).hash(&mut h);
     (model.mesh_vertadr(), model.mesh_vertnum(), model.mesh_faceadr(), model.mesh_facenum()).hash(&mut h);
     (model.mesh_normaladr(), model.mesh_normalnum(), model.mesh_texcoordadr(), model.mesh_texcoordnum()).hash(&mut h);
-    (model.mesh_face(), model.mesh_facenormal(), model.mesh_facetexcoord()).hash(&mut h);
+    (bytes(model.mesh_face()), bytes(model.mesh_facenormal()), bytes(model.mesh_facetexcoord())).hash(&mut h);
     (model.mesh_graphadr(), model.mesh_graph()).hash(&mut h);
-    let floats = |h: &mut DefaultHasher, xs: &[f32]| xs.iter().for_each(|x| x.to_bits().hash(h));
-    floats(&mut h, model.mesh_vert().as_flattened());
-    floats(&mut h, model.mesh_normal().as_flattened());
-    floats(&mut h, model.mesh_texcoord().as_flattened());
+    (bytes(model.mesh_vert()), bytes(model.mesh_normal()), bytes(model.mesh_texcoord())).hash(&mut h);
     (model.hfield_nrow(), model.hfield_ncol(), model.hfield_adr()).hash(&mut h);
-    floats(&mut h, model.hfield_data());
-    model.hfield_size().as_flattened().iter().for_each(|x| x.to_bits().hash(&mut h));
-    let (g, q, map) = (&m.vis.global, &m.vis.quality, &m.vis.map);
+    (bytes(model.hfield_data()), bytes(model.hfield_size())).hash(&mut h);
+    (bytes(model.mat_texid()), bytes(model.mat_texuniform()), bytes(model.mat_texrepeat())).hash(&mut h);
+    model.geom_type().iter().map(|&t| t as i32).collect::<Vec<_>>().hash(&mut h);
+    (bytes(model.geom_size()), model.geom_matid()).hash(&mut h);
+    let (g, q, map, rgba) = (&m.vis.global, &m.vis.quality, &m.vis.map, &m.vis.rgba);
     (g.offwidth, g.offheight, g.linewidth.to_bits(), q.offsamples, q.shadowsize).hash(&mut h);
     (q.numslices, q.numstacks, q.numquads).hash(&mut h);
-    [map.fogstart, map.fogend, map.shadowclip, map.shadowscale, map.znear, map.zfar].map(f32::to_bits).hash(&mut h);
-    m.vis.rgba.fog.map(f32::to_bits).hash(&mut h);
-    m.stat.extent.to_bits().hash(&mut h);
-    h.finish()
+    let maps = [map.fogstart, map.fogend, map.shadowclip, map.shadowscale, map.znear, map.zfar, map.haze];
+    (bytes(&maps), bytes(&rgba.fog), bytes(&rgba.haze), m.stat.extent.to_bits()).hash(&mut h);
+    UploadKey(Some(h.finish()))
+}
+
+/// What [`SceneRenderer::new`] sets in `model` before it renders it: the look's texture colour
+/// spaces, samples for preview quality, a buffer at least as large as asked for.
+fn prepare(model: &mut MjModel, options: RenderOptions) {
+    options.look.apply(model);
+    let m = unsafe { model.ffi_mut() };
+    if options.quality == Quality::Preview {
+        m.vis.quality.offsamples = 0;
+    }
+    m.vis.global.offwidth = m.vis.global.offwidth.max(options.max_width as i32);
+    m.vis.global.offheight = m.vis.global.offheight.max(options.max_height as i32);
 }
 
 /// Scene state for one compiled model over a (possibly shared) [`RenderContext`] on this thread's
@@ -295,28 +326,36 @@ pub struct SceneRenderer {
 impl SceneRenderer {
     /// Apply the look to `model` (texture colour spaces) and render it on `gl`: on the render
     /// context of an earlier renderer of the same scene on `gl` while one lives, else on a new one
-    /// with the model uploaded.
+    /// with the model uploaded. Hashes the model on this thread ([`upload_key`]).
     pub fn new(gl: Rc<GlContext>, model: &mut MjModel, options: RenderOptions) -> Result<Self, SimError> {
-        options.look.apply(model);
-        let m = unsafe { model.ffi_mut() };
-        if options.quality == Quality::Preview {
-            m.vis.quality.offsamples = 0;
-        }
-        m.vis.global.offwidth = m.vis.global.offwidth.max(options.max_width as i32);
-        m.vis.global.offheight = m.vis.global.offheight.max(options.max_height as i32);
+        let key = upload_key(model, options);
+        Self::with_key(gl, model, options, key)
+    }
+
+    /// [`SceneRenderer::new`] with `key`, [`upload_key`] of `model` and `options`, computed before.
+    pub fn with_key(
+        gl: Rc<GlContext>,
+        model: &mut MjModel,
+        options: RenderOptions,
+        key: UploadKey,
+    ) -> Result<Self, SimError> {
+        prepare(model, options);
+        let m = model.ffi();
         let buffer = (m.vis.global.offwidth as u32, m.vis.global.offheight as u32);
         let cameras = (0..m.ncam).map(|i| name_of(model, c::mjtObj::mjOBJ_CAMERA, i)).collect();
-        let key = (Rc::as_ptr(&gl), upload_key(model));
-        let shared = UPLOADED.with(|u| u.borrow().get(&key).and_then(Weak::upgrade));
+        let key = key.0.map(|k| (Rc::as_ptr(&gl), k));
+        let shared = key.and_then(|key| UPLOADED.with(|u| u.borrow().get(&key).and_then(Weak::upgrade)));
         let con = match shared {
             Some(con) => con,
             None => {
                 let con = Rc::new(Self::upload(gl, model)?);
-                UPLOADED.with(|u| {
-                    let mut u = u.borrow_mut();
-                    u.retain(|_, weak| weak.strong_count() > 0);
-                    u.insert(key, Rc::downgrade(&con));
-                });
+                if let Some(key) = key {
+                    UPLOADED.with(|u| {
+                        let mut u = u.borrow_mut();
+                        u.retain(|_, weak| weak.strong_count() > 0);
+                        u.insert(key, Rc::downgrade(&con));
+                    });
+                }
                 con
             }
         };
@@ -350,7 +389,8 @@ impl SceneRenderer {
     /// A new render context on `gl` with `model`'s meshes and textures uploaded.
     fn upload(gl: Rc<GlContext>, model: &MjModel) -> Result<RenderContext, SimError> {
         // SAFETY: a zeroed context is what `mjr_defaultContext` expects to fill in.
-        let context = RenderContext { con: UnsafeCell::new(unsafe { std::mem::zeroed() }), _gl: gl };
+        let context =
+            RenderContext { con: UnsafeCell::new(unsafe { std::mem::zeroed() }), last_drawer: Cell::new(0), _gl: gl };
         unsafe {
             c::mjr_defaultContext(context.con.get());
             c::mjr_makeContext(model.ffi(), context.con.get(), FONT_SCALE);
@@ -364,6 +404,11 @@ impl SceneRenderer {
             }
         }
         Ok(context)
+    }
+
+    /// This renderer, among those alive: the address of its scene.
+    fn id(&self) -> usize {
+        &*self.scn as *const c::mjvScene as usize
     }
 
     /// Whether `self` and `other` render on one render context (one upload of their scene).
@@ -423,6 +468,7 @@ impl SceneRenderer {
         rect: Rect,
     ) -> Result<(), SimError> {
         self.check_rect(rect)?;
+        self.con.last_drawer.set(self.id());
         self.cam.type_ = c::mjtCamera::mjCAMERA_FIXED as i32;
         self.cam.fixedcamid = camera as i32;
         unsafe {
@@ -445,6 +491,7 @@ impl SceneRenderer {
     /// split at `\n`).
     pub fn draw_text(&mut self, rect: Rect, text: &str, background: [f32; 3]) -> Result<(), SimError> {
         self.check_rect(rect)?;
+        self.con.last_drawer.set(self.id());
         let text = CString::new(text.replace('\0', " ")).expect("no NUL left");
         let empty = CString::default();
         unsafe {
@@ -479,6 +526,13 @@ impl SceneRenderer {
     /// Read `rect` of the offscreen buffer back, in the reference orientation.
     pub fn read(&mut self, rect: Rect) -> Result<Frame, SimError> {
         self.check_rect(rect)?;
+        if self.con.last_drawer.get() != self.id() {
+            return Err(SimError::Other(
+                "another renderer of this scene drew into the buffer this renderer shares with it since this one \
+                 last drew: read each renderer's picture before another one draws"
+                    .into(),
+            ));
+        }
         let mut rgb = vec![0u8; rect.width as usize * rect.height as usize * 3];
         self.bind_buffer();
         unsafe { c::mjr_readPixels(rgb.as_mut_ptr(), std::ptr::null_mut(), rect.ffi(), self.con.con.get()) };

@@ -41,8 +41,10 @@ impl PolicyCameras {
     pub fn new(env: &mut LiberoEnv, size: u32) -> Result<Self, SimError> {
         let options =
             RenderOptions { look: Look::Mujoco323, quality: Quality::Reference, max_width: size, max_height: size };
+        // hashed here, not on a GL thread the other workers may be waiting for
+        let key = env.upload_key(options);
         // SAFETY: the env (MuJoCo model and data) is used on the GL thread while this one waits.
-        let renderer = unsafe { OnGlThread::make(worker_gl()?, |gl| env.renderer(gl.clone(), options))? };
+        let renderer = unsafe { OnGlThread::make(worker_gl()?, |gl| env.renderer_with_key(gl.clone(), options, key))? };
         Ok(PolicyCameras { renderer, size })
     }
 

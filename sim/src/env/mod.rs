@@ -28,7 +28,7 @@ use crate::gl::GlContext;
 use crate::gripper::Gripper;
 use crate::osc::{ARM_DOF, ArmState, OscController};
 use crate::predicates::{Goal, GoalStatus};
-use crate::render::{Frame, Rect, RenderOptions, SceneRenderer};
+use crate::render::{Frame, Rect, RenderOptions, SceneRenderer, UploadKey};
 use crate::scene::{self, object_id};
 use mujoco_rs::mujoco_c;
 use mujoco_rs::prelude::*;
@@ -527,11 +527,34 @@ impl LiberoEnv {
 
     /// A render context for this env's model (see [`SceneRenderer::new`]; applies the look).
     pub fn renderer(&mut self, gl: std::rc::Rc<GlContext>, options: RenderOptions) -> Result<SceneRenderer, SimError> {
+        let key = self.upload_key(options);
+        SceneRenderer::with_key(gl, &mut self.model, options, key)
+    }
+
+    /// [`crate::render::upload_key`] of this env's model for `options`: computed on the caller's
+    /// thread before it hands [`LiberoEnv::renderer_with_key`] to a shared GL thread.
+    pub fn upload_key(&mut self, options: RenderOptions) -> UploadKey {
+        self.restore_colour_spaces();
+        crate::render::upload_key(&mut self.model, options)
+    }
+
+    /// The compiled texture colour spaces back in the model (a look may have changed them).
+    fn restore_colour_spaces(&mut self) {
         let m = unsafe { self.model.ffi_mut() };
         for (i, &cs) in self.tex_colorspace.iter().enumerate() {
             unsafe { *m.tex_colorspace.add(i) = cs };
         }
-        SceneRenderer::new(gl, &mut self.model, options)
+    }
+
+    /// [`LiberoEnv::renderer`] with `key` from [`LiberoEnv::upload_key`] of the same options.
+    pub fn renderer_with_key(
+        &mut self,
+        gl: std::rc::Rc<GlContext>,
+        options: RenderOptions,
+        key: UploadKey,
+    ) -> Result<SceneRenderer, SimError> {
+        self.restore_colour_spaces();
+        SceneRenderer::with_key(gl, &mut self.model, options, key)
     }
 
     /// Draw a camera's view of the current state into a region of the renderer's buffer.

@@ -23,7 +23,7 @@ thread_local! {
 }
 
 /// The rollout worker's GL thread (chosen on first use, shared by LIBERO's and ALOHA-sim's policy
-/// cameras): a thread of its own, or its GPU's shared one ([`GlThread::for_worker`]).
+/// cameras): a thread of its own, or the process's shared one ([`GlThread::for_worker`]).
 pub fn worker_gl() -> Result<Arc<GlThread>, SimError> {
     GL.with(|cell| cell.get_or_init(|| GlThread::for_worker().map_err(|e| e.to_string())).clone())
         .map_err(SimError::Other)

@@ -147,15 +147,21 @@ impl GlThread {
     /// thread of its own on the device `next_device` gives it.
     pub fn for_worker() -> Result<Arc<GlThread>, SimError> {
         let choice = GlThreads::from_env()?;
-        let mut shared = SHARED.lock().expect("the shared GL thread");
-        if let Some(thread) = shared.as_ref().filter(|t| choice.shared_on(t.device())) {
-            return Ok(thread.clone());
+        let started = SHARED.lock().expect("the shared GL thread").clone();
+        if let Some(thread) = started.filter(|t| choice.shared_on(t.device())) {
+            return Ok(thread);
         }
         let device = crate::gl::next_device()?;
-        let thread = GlThread::start(device.as_ref())?;
-        if choice.shared_on(device.as_ref()) {
-            *shared = Some(thread.clone());
+        if !choice.shared_on(device.as_ref()) {
+            // a thread of its own, made without holding the lock: workers start theirs side by side
+            return GlThread::start(device.as_ref());
         }
+        let mut shared = SHARED.lock().expect("the shared GL thread");
+        if let Some(thread) = shared.as_ref() {
+            return Ok(thread.clone()); // another worker started it meanwhile
+        }
+        let thread = GlThread::start(device.as_ref())?;
+        *shared = Some(thread.clone());
         Ok(thread)
     }
 

@@ -90,6 +90,8 @@ enum Command {
 }
 
 fn main() -> anyhow::Result<()> {
+    // before any thread: libtorch reads it at its first attention call (see the function)
+    libero_policies::placement::keep_cudnn_attention_last();
     let cli = Cli::parse();
     let bundles = || bundles_location::resolve(cli.bundles.as_deref());
     match cli.command {

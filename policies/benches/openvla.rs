@@ -588,6 +588,8 @@ fn phases(m: &OpenVlaModel, b: usize, size: u32, args: &Args, unnorm: Option<&st
 }
 
 fn main() {
+    // what `pipeline run` does, so the bench times the attention kernels runs use
+    libero_policies::placement::keep_cudnn_attention_last();
     let args = parse_args().unwrap_or_else(|e| {
         eprintln!("openvla bench: {e}");
         std::process::exit(2)

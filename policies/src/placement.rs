@@ -121,6 +121,53 @@ impl FromStr for Attention {
     }
 }
 
+/// The environment that keeps libtorch's cuDNN attention behind flash and memory-efficient
+/// attention for [`Attention::Sdpa`]. torch 2.11 on an H100 (sm90, cuDNN ≥ 9.9) puts cuDNN's
+/// attention first unless told otherwise; torch reads `TORCH_CUDNN_SDPA_PREFERRED` in some
+/// releases and `TORCH_CUDNN_SDPA_DEPRIORITIZED` in later ones, once per process at the first
+/// attention call, so both are set.
+///
+/// Why: cuDNN's attention builds an execution graph for each problem shape (batch, query and key
+/// lengths) and caches it per thread (`aten/src/ATen/native/cudnn/MHA.cpp`). A run's forwards
+/// change all three all the time (how many episodes wait, the longest instruction, and every
+/// decode step's key length), so it keeps building graphs on the host. A benchmark of fixed shapes
+/// hits the cache and does not see this. Real episodes on one H100, 32 workers, 30 episodes each,
+/// back to back (`data/benchmarks/gpu-sdpa-cudnn-h100-2026-11-27`): SDPA with cuDNN first 36.4
+/// policy steps/s (389 ms per forward), eager 48.6 (239 ms), SDPA with cuDNN last **63.5**
+/// (165 ms).
+pub const CUDNN_ATTENTION_LAST: [(&str, &str); 2] =
+    [("TORCH_CUDNN_SDPA_PREFERRED", "0"), ("TORCH_CUDNN_SDPA_DEPRIORITIZED", "1")];
+
+/// What [`keep_cudnn_attention_last`] sets, given the environment's `var`: nothing where either
+/// variable is already set (the user's choice stands, e.g. `TORCH_CUDNN_SDPA_PREFERRED=1` to
+/// measure cuDNN's attention), else [`CUDNN_ATTENTION_LAST`].
+pub fn cudnn_attention_settings(
+    var: impl Fn(&str) -> Option<std::ffi::OsString>,
+) -> &'static [(&'static str, &'static str)] {
+    if CUDNN_ATTENTION_LAST.iter().any(|(name, _)| var(name).is_some()) { &[] } else { &CUDNN_ATTENTION_LAST }
+}
+
+/// The two variables' values as `var` reads them (`null` where unset), for a run's policy
+/// identity: whether cuDNN's attention or flash and memory-efficient attention computed a GPU
+/// run's SDPA, so that a resume under other settings is refused rather than mixing the two.
+pub fn cudnn_attention_environment(var: impl Fn(&str) -> Option<std::ffi::OsString>) -> serde_json::Value {
+    CUDNN_ATTENTION_LAST
+        .iter()
+        .map(|(name, _)| (name.to_string(), serde_json::json!(var(name).map(|v| v.to_string_lossy().into_owned()))))
+        .collect::<serde_json::Map<_, _>>()
+        .into()
+}
+
+/// Sets [`CUDNN_ATTENTION_LAST`] in this process's environment unless the user set either
+/// variable. Call it first thing in `main`, before any thread exists (`std::env::set_var`'s
+/// contract) and so before libtorch's first attention call reads it.
+pub fn keep_cudnn_attention_last() {
+    for (name, value) in cudnn_attention_settings(|name| std::env::var_os(name)) {
+        // SAFETY: called at the start of `main`, while the process has one thread
+        unsafe { std::env::set_var(name, value) };
+    }
+}
+
 /// Weight-only quantisation of a model's linear layers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub enum Quantization {
@@ -192,5 +239,29 @@ mod tests {
             assert_eq!(q.to_string().parse::<Quantization>().unwrap(), q);
         }
         assert!("int2".parse::<Quantization>().unwrap_err().contains("int8 or int4"));
+    }
+
+    #[test]
+    fn cudnn_attention_goes_last_unless_the_user_set_either_variable() {
+        let unset = |_: &str| None;
+        assert_eq!(cudnn_attention_settings(unset), &CUDNN_ATTENTION_LAST[..]);
+        for (name, _) in CUDNN_ATTENTION_LAST {
+            let user_set = |asked: &str| (asked == name).then(|| std::ffi::OsString::from("1"));
+            assert!(cudnn_attention_settings(user_set).is_empty(), "{name} set by the user");
+        }
+        let ours = |asked: &str| {
+            CUDNN_ATTENTION_LAST
+                .iter()
+                .find(|(name, _)| *name == asked)
+                .map(|(_, value)| std::ffi::OsString::from(value))
+        };
+        assert_eq!(
+            cudnn_attention_environment(ours),
+            serde_json::json!({"TORCH_CUDNN_SDPA_PREFERRED": "0", "TORCH_CUDNN_SDPA_DEPRIORITIZED": "1"})
+        );
+        assert_eq!(
+            cudnn_attention_environment(unset),
+            serde_json::json!({"TORCH_CUDNN_SDPA_PREFERRED": null, "TORCH_CUDNN_SDPA_DEPRIORITIZED": null})
+        );
     }
 }

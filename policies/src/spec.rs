@@ -513,10 +513,13 @@ fn placement_identity(
     });
     identity["quantization"] = serde_json::json!(o.quant.describe());
     let oft = matches!(policy, "oft");
-    let attention: Vec<&str> = on_gpu
-        .iter()
-        .map(|&gpu| o.attention.unwrap_or(crate::placement::Attention::model_default(oft, gpu)).describe())
-        .collect();
+    let attention_on = |gpu: bool| o.attention.unwrap_or(crate::placement::Attention::model_default(oft, gpu));
+    let attention: Vec<&str> = on_gpu.iter().map(|&gpu| attention_on(gpu).describe()).collect();
+    if on_gpu.iter().any(|&gpu| gpu && attention_on(gpu) == crate::placement::Attention::Sdpa) {
+        // which kernels compute SDPA on a GPU (`placement::keep_cudnn_attention_last`)
+        identity["sdpa_cudnn_environment"] =
+            crate::placement::cudnn_attention_environment(|name| std::env::var_os(name));
+    }
     identity["attention"] = serde_json::json!(if attention.windows(2).all(|w| w[0] == w[1]) {
         serde_json::json!(attention[0])
     } else {

@@ -35,4 +35,7 @@ for r in "${runs[@]}"; do
     --policy "openvla:$ckpt?unnorm=libero_spatial_no_noops&batch=$batch${options:+&$options}" --jobs "$jobs" ${MAX_STEPS:+--max-steps "$MAX_STEPS"} ${ENGINE:+--engine "$ENGINE"} 2>&1 | tee "$out/$name.log" | grep -v '^|\|^+' || true
   echo "::: $name: end $(date -u +%FT%T.%3NZ)" | tee -a "$out/runs.log"
   "$P" --bundles "$work/bundles" bench run --run "$out/$name" --no-rescoring | tee "$out/$name.bench.txt"
+  # the attention the manifest records (with, for SDPA on a GPU, whether cuDNN's attention was kept last)
+  python3 -c 'import json, sys; i = json.load(open(sys.argv[1]))["policy_identity"]; print("attention:", json.dumps({k: i.get(k) for k in ("attention", "sdpa_cudnn_environment")}))' \
+    "$out/$name/manifest.json" | tee -a "$out/$name.bench.txt" || true
 done

@@ -129,7 +129,9 @@ pub fn single_and_batched_steps(d: &Path, policy: &str, max_steps: u32) -> (Vec<
             // the run reports its forwards; at least one must have held several episodes
             let prefix = format!("batched policy {kind}:");
             let line = stderr.lines().find(|l| l.starts_with(&prefix)).unwrap_or_else(|| panic!("{stderr}"));
-            let most: usize = line.rsplit("at most ").next().unwrap().trim().parse().unwrap();
+            let after = line.rsplit("at most ").next().unwrap();
+            let most: usize = after.split(';').next().unwrap().trim().parse().unwrap();
+            assert!(after.contains("ms per forward"), "the forwards' time is missing: {line}");
             assert!(most > 1, "no forward held more than one episode: {line}");
             eprintln!("{line}");
         }

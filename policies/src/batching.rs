@@ -175,17 +175,28 @@ type Query = (Request, Instant, Reply);
 /// Batch sizes the batcher has run, for tests and benchmarks.
 #[derive(Debug, Default, Clone)]
 pub struct BatchStats {
+    /// Episodes per forward, in order.
     pub batches: Vec<usize>,
+    /// Each forward's wall time on the batching thread, ms (`ActTiming::forward_ms`): per replica,
+    /// so that a run on several GPUs shows whether one device's forwards are slower.
+    pub forward_ms: Vec<f32>,
 }
 
 impl BatchStats {
-    /// `"12 forwards, 3.5 episodes per forward on average, at most 4"`.
+    /// `"12 forwards, 3.5 episodes per forward on average, at most 4; 41.2 ms per forward (median 40.0)"`.
     pub fn summary(&self) -> String {
         let n = self.batches.len();
         let total: usize = self.batches.iter().sum();
         let max = self.batches.iter().max().copied().unwrap_or(0);
         let mean = if n == 0 { 0.0 } else { total as f64 / n as f64 };
-        format!("{n} forwards, {mean:.1} episodes per forward on average, at most {max}")
+        let mut text = format!("{n} forwards, {mean:.1} episodes per forward on average, at most {max}");
+        if !self.forward_ms.is_empty() {
+            let mut ms = self.forward_ms.clone();
+            ms.sort_by(f32::total_cmp);
+            let mean_ms = ms.iter().map(|&m| f64::from(m)).sum::<f64>() / ms.len() as f64;
+            text += &format!("; {mean_ms:.1} ms per forward (median {:.1})", ms[ms.len() / 2]);
+        }
+        text
     }
 }
 
@@ -247,7 +258,11 @@ impl Batcher {
                         });
                 let forward_ms = started.elapsed().as_secs_f32() * 1e3;
                 answers.resize_with(replies.len(), || Err("the model returned fewer answers than requests".into()));
-                thread_stats.lock().expect("stats").batches.push(replies.len());
+                {
+                    let mut stats = thread_stats.lock().expect("stats");
+                    stats.batches.push(replies.len());
+                    stats.forward_ms.push(forward_ms);
+                }
                 let forward_batch = replies.len() as u32;
                 let forward_id = FORWARD_IDS.fetch_add(1, Ordering::SeqCst);
                 for ((sent, reply), answer) in replies.into_iter().zip(answers) {
@@ -388,6 +403,17 @@ impl Policy for BatchedPolicy {
 mod tests {
     use super::*;
     use std::sync::Barrier;
+
+    #[test]
+    fn the_summary_gives_episodes_and_milliseconds_per_forward() {
+        let stats = BatchStats { batches: vec![2, 4, 3], forward_ms: vec![30.0, 50.0, 40.0] };
+        assert_eq!(
+            stats.summary(),
+            "3 forwards, 3.0 episodes per forward on average, at most 4; 40.0 ms per forward (median 40.0)"
+        );
+        let unused = BatchStats::default();
+        assert_eq!(unused.summary(), "0 forwards, 0.0 episodes per forward on average, at most 0");
+    }
 
     /// Echoes each request's eef x and the batch size, so routing and batching are visible.
     struct Echo;

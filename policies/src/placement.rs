@@ -135,6 +135,10 @@ impl FromStr for Attention {
 /// back to back (`data/benchmarks/gpu-sdpa-cudnn-h100-2026-11-27`): SDPA with cuDNN first 36.4
 /// policy steps/s (389 ms per forward), eager 48.6 (239 ms), SDPA with cuDNN last **63.5**
 /// (165 ms).
+///
+/// It is also the arithmetic closer to the published numbers': torch prefers cuDNN's attention
+/// only on sm90/sm100 (H100, B200), so on an A100 the same SDPA call runs flash attention, and
+/// OpenVLA's LIBERO loop loads the model with the flash-attn package's kernels.
 pub const CUDNN_ATTENTION_LAST: [(&str, &str); 2] =
     [("TORCH_CUDNN_SDPA_PREFERRED", "0"), ("TORCH_CUDNN_SDPA_DEPRIORITIZED", "1")];
 

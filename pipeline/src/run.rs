@@ -389,12 +389,14 @@ async fn run_pending(
         peak_rss_bytes: peak_rss_bytes(),
         host: compaction::hostname(),
     };
+    // a cluster's run counts no workers here (its executors' slots ran the episodes)
+    let ran_on =
+        if record.workers == 0 { "the cluster's executors".to_string() } else { format!("{} workers", record.workers) };
     eprintln!(
-        "{} episodes in {:.1} s ({:.2} episodes/s on {} workers); peak RSS {:.2} GB; task models compiled: {} for {} tasks",
+        "{} episodes in {:.1} s ({:.2} episodes/s on {ran_on}); peak RSS {:.2} GB; task models compiled: {} for {} tasks",
         record.episodes,
         record.wall_s,
         record.episodes as f64 / record.wall_s,
-        record.workers,
         record.peak_rss_bytes.unwrap_or(0) as f64 / 1e9,
         record.task_compiles,
         record.tasks

@@ -19,14 +19,19 @@
 //! batch of one (a batch changes the arithmetic only where the model's kernels do).
 //!
 //! Several devices: [`Replicas`] holds one batcher per model replica (one per GPU, say); each
-//! episode is served by one replica from its start to its end, the one with the fewest episodes
-//! in progress when it starts, so the episodes in flight spread evenly whatever the number of
-//! devices, and each replica batches its own share.
+//! episode is served by one replica from its start to its end, and each replica batches its own
+//! share. An episode starts on the replica where (its episodes in progress + 1) × (its recent
+//! forward's duration) is least: alike devices share the episodes evenly, and a slower one takes
+//! fewer. Devices of one machine are not alike in a run: on two H100s the replica whose GPU also
+//! did the process's renders took 218 ms per forward against the other's 168
+//! (`data/benchmarks/gpu-two-h100-cudnn-last-2026-11-27`), and a box may mix cards. A forward's
+//! duration grows with its batch, so the share settles instead of running away to the faster
+//! device; until a replica has run a forward, and for forwards under a millisecond, all count alike.
 
 use crate::chunking::ActionChunker;
 use crate::{ActTiming, Action, Observation, Policy, PolicyError};
 use std::any::Any;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -137,16 +142,22 @@ impl Replicas {
     }
 
     /// The replica for an episode that starts now, counted in its episodes in progress: the one
-    /// with the fewest (the lowest index among equals).
+    /// with the least (episodes in progress + 1) × recent forward ms (the lowest index among
+    /// equals; see the module's doc).
     fn start_episode(&self) -> usize {
         let _choosing = self.choosing.lock().unwrap_or_else(|p| p.into_inner());
-        let (i, b) = self
-            .batchers
-            .iter()
-            .enumerate()
-            .min_by_key(|(i, b)| (b.in_progress.load(Ordering::SeqCst), *i))
-            .expect("at least one replica");
+        let durations: Vec<f64> = self.batchers.iter().map(|b| b.recent_forward_ms()).collect();
+        let known: Vec<f64> = durations.iter().copied().filter(|&ms| ms > 0.0).collect();
+        // a replica without a forward yet counts as the others' mean (all alike when none has run)
+        let unknown = if known.is_empty() { 1.0 } else { known.iter().sum::<f64>() / known.len() as f64 };
+        let cost = |i: usize| {
+            let ms = if durations[i] > 0.0 { durations[i] } else { unknown };
+            (self.batchers[i].in_progress.load(Ordering::SeqCst) + 1) as f64 * ms.max(1.0)
+        };
+        let i = (1..self.batchers.len()).fold(0, |best, i| if cost(i) < cost(best) { i } else { best });
+        let b = &self.batchers[i];
         b.in_progress.fetch_add(1, Ordering::SeqCst);
+        b.stats.lock().expect("stats").episodes += 1;
         i
     }
 
@@ -175,6 +186,8 @@ type Query = (Request, Instant, Reply);
 /// Batch sizes the batcher has run, for tests and benchmarks.
 #[derive(Debug, Default, Clone)]
 pub struct BatchStats {
+    /// Episodes started on this batcher (with several replicas, its share of the run's).
+    pub episodes: usize,
     /// Episodes per forward, in order.
     pub batches: Vec<usize>,
     /// Each forward's wall time on the batching thread, ms (`ActTiming::forward_ms`): per replica,
@@ -183,13 +196,15 @@ pub struct BatchStats {
 }
 
 impl BatchStats {
-    /// `"12 forwards, 3.5 episodes per forward on average, at most 4; 41.2 ms per forward (median 40.0)"`.
+    /// `"12 forwards, 3.5 episodes per forward on average, at most 4; 41.2 ms per forward (median 40.0)"`,
+    /// led by `"5 episodes, "` where the batcher counted the episodes it served (a replica's).
     pub fn summary(&self) -> String {
         let n = self.batches.len();
         let total: usize = self.batches.iter().sum();
         let max = self.batches.iter().max().copied().unwrap_or(0);
         let mean = if n == 0 { 0.0 } else { total as f64 / n as f64 };
-        let mut text = format!("{n} forwards, {mean:.1} episodes per forward on average, at most {max}");
+        let episodes = if self.episodes > 0 { format!("{} episodes, ", self.episodes) } else { String::new() };
+        let mut text = format!("{episodes}{n} forwards, {mean:.1} episodes per forward on average, at most {max}");
         if !self.forward_ms.is_empty() {
             let mut ms = self.forward_ms.clone();
             ms.sort_by(f32::total_cmp);
@@ -210,6 +225,9 @@ pub struct Batcher {
     in_progress: Arc<AtomicUsize>,
     replan_steps: usize,
     stats: Arc<Mutex<BatchStats>>,
+    /// A moving average of this batcher's forward ms (f64 bits; 0: no forward yet), which
+    /// [`Replicas`] weighs its episodes by.
+    recent_forward_ms: Arc<AtomicU64>,
 }
 
 impl Batcher {
@@ -222,6 +240,8 @@ impl Batcher {
         let thread_stats = stats.clone();
         let in_progress = Arc::new(AtomicUsize::new(0));
         let thread_in_progress = in_progress.clone();
+        let recent_forward_ms = Arc::new(AtomicU64::new(0));
+        let thread_recent = recent_forward_ms.clone();
         std::thread::spawn(move || {
             // Ends when every sender (every policy and the batcher itself) is gone.
             while let Ok(first) = rx.recv() {
@@ -263,6 +283,11 @@ impl Batcher {
                     stats.batches.push(replies.len());
                     stats.forward_ms.push(forward_ms);
                 }
+                // the last ~8 forwards weigh most
+                let before = f64::from_bits(thread_recent.load(Ordering::SeqCst));
+                let ms = f64::from(forward_ms);
+                let recent = if before > 0.0 { 0.875 * before + 0.125 * ms } else { ms };
+                thread_recent.store(recent.max(f64::MIN_POSITIVE).to_bits(), Ordering::SeqCst);
                 let forward_batch = replies.len() as u32;
                 let forward_id = FORWARD_IDS.fetch_add(1, Ordering::SeqCst);
                 for ((sent, reply), answer) in replies.into_iter().zip(answers) {
@@ -280,7 +305,13 @@ impl Batcher {
             in_progress,
             replan_steps,
             stats,
+            recent_forward_ms,
         })
+    }
+
+    /// The moving average of this batcher's forward ms; 0 before its first forward.
+    fn recent_forward_ms(&self) -> f64 {
+        f64::from_bits(self.recent_forward_ms.load(Ordering::SeqCst))
     }
 
     /// The model's [`BatchModel::replan_steps`].
@@ -406,11 +437,13 @@ mod tests {
 
     #[test]
     fn the_summary_gives_episodes_and_milliseconds_per_forward() {
-        let stats = BatchStats { batches: vec![2, 4, 3], forward_ms: vec![30.0, 50.0, 40.0] };
+        let stats = BatchStats { episodes: 0, batches: vec![2, 4, 3], forward_ms: vec![30.0, 50.0, 40.0] };
         assert_eq!(
             stats.summary(),
             "3 forwards, 3.0 episodes per forward on average, at most 4; 40.0 ms per forward (median 40.0)"
         );
+        let replica = BatchStats { episodes: 5, ..stats };
+        assert!(replica.summary().starts_with("5 episodes, 3 forwards, "), "{}", replica.summary());
         let unused = BatchStats::default();
         assert_eq!(unused.summary(), "0 forwards, 0.0 episodes per forward on average, at most 0");
     }
@@ -525,6 +558,41 @@ mod tests {
             w.end_episode();
         }
         assert!(replicas.batchers.iter().all(|b| b.in_progress.load(Ordering::SeqCst) == 0));
+    }
+
+    /// Takes `0` ms per forward.
+    struct Sleepy(u64);
+    impl BatchModel for Sleepy {
+        fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {
+            std::thread::sleep(Duration::from_millis(self.0));
+            requests.iter().map(|_| Ok(vec![[0.0; 7]])).collect()
+        }
+    }
+
+    #[test]
+    fn a_slower_replica_takes_fewer_episodes() {
+        let replicas = Replicas::new(vec![
+            Batcher::start(Sleepy(40), 8, Duration::from_millis(1)),
+            Batcher::start(Sleepy(4), 8, Duration::from_millis(1)),
+        ]);
+        let mut workers: Vec<BatchedPolicy> =
+            (0..12).map(|_| BatchedPolicy::on_replicas(replicas.clone(), "sleepy")).collect();
+        // before any forward the two count alike: the first two episodes take one each
+        for w in workers.iter_mut().take(2) {
+            w.reset("task", 0);
+            w.act(&Observation::default()).unwrap();
+        }
+        assert_eq!((workers[0].replica(), workers[1].replica()), (Some(0), Some(1)));
+        // the 40 ms replica now weighs (1 + 1) × 40 = 80 against (n + 1) × 4 or more: the next ten
+        // episodes go to the fast one until it holds as many as its forwards are faster
+        for w in workers.iter_mut().skip(2) {
+            w.reset("task", 0);
+        }
+        let on_fast = workers.iter().filter(|w| w.replica() == Some(1)).count();
+        assert!(on_fast >= 8, "the 4 ms replica has {on_fast} of 12 episodes");
+        let stats = replicas.stats();
+        assert_eq!(stats[0].episodes + stats[1].episodes, 12);
+        assert!(stats[1].summary().starts_with(&format!("{on_fast} episodes, ")), "{}", stats[1].summary());
     }
 
     #[test]

@@ -10,7 +10,8 @@
 #        own replica, GL thread and renders) and JOBS slots;
 # then the ratio of each to one's policy steps/s. Machines of one kind differ by up to ~15% from
 # lease to lease (data/benchmarks/gpu-two-h100-one-gl-thread-2026-11-27): a ratio means something
-# only within one call. MODES (default "one two") picks the runs and their order.
+# only within one call. MODES (default "one two") picks the runs and their order; EGL_DEVICES (see
+# below) skips the EGL probes.
 #
 # usage (on the GPU machine, from the repo root): scripts/bench/gpu_two_gpus.sh CARRY OUT [JOBS:TRIALS]
 #   CARRY: scripts/bench/gpu_carry.sh's folder; OUT: each run's `bench run` figures, logs and
@@ -35,7 +36,9 @@ egl_of() {
   [ -n "$fallback" ] || { echo "EGL lists no device for CUDA device $1" >&2; exit 1; }
   echo "$fallback"
 }
-egl=("$(egl_of 0)" "$(egl_of 1)"); egl0=$(egl_of 0 0,1)
+# EGL_DEVICES="E0 E1 E0ALL" skips the probes where a call of this machine kind already printed them.
+if [ -n "${EGL_DEVICES:-}" ]; then read -r e0 e1 egl0 <<< "$EGL_DEVICES"; egl=("$e0" "$e1")
+else egl=("$(egl_of 0)" "$(egl_of 1)"); egl0=$(egl_of 0 0,1); fi
 [ -n "${egl[0]}" ] && [ -n "${egl[1]}" ] && [ -n "$egl0" ] || exit 1
 echo "EGL devices of CUDA 0 and 1, each seen alone: ${egl[*]}; of CUDA 0 seen with all: $egl0" | tee -a "$out/figures.txt"
 

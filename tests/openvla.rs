@@ -106,7 +106,7 @@ fn replicas_serve_their_own_episodes_and_quantised_weights_run_through_the_pipel
     }
     assert_eq!(single, on_replicas, "an episode's actions depend on its replica");
     let identity = sql_rows(&d.join("replicas"), "SELECT policy_identity FROM manifest", &[]).concat().join(",");
-    assert!(identity.contains("fewest episodes in progress") && identity.matches("Cpu").count() == 2, "{identity}");
+    assert!(identity.contains("(episodes in progress + 1) x recent forward ms") && identity.matches("Cpu").count() == 2, "{identity}");
 
     for quant in ["int8", "int4"] {
         let run = d.join(quant);

@@ -509,7 +509,7 @@ fn placement_identity(
     }
     identity["replicas"] = serde_json::json!({
         "devices": devices,
-        "assignment": "each episode on the replica with the fewest episodes in progress when it starts",
+        "assignment": "each episode on the replica with the least (episodes in progress + 1) x recent forward ms when it starts",
     });
     identity["quantization"] = serde_json::json!(o.quant.describe());
     let oft = matches!(policy, "oft");

@@ -27,6 +27,8 @@
 //! (`data/benchmarks/gpu-two-h100-cudnn-last-2026-11-27`), and a box may mix cards. A forward's
 //! duration grows with its batch, so the share settles instead of running away to the faster
 //! device; until a replica has run a forward, and for forwards under a millisecond, all count alike.
+//! A forward that panics (out of GPU memory, say) counts as a second or more, so a failing device
+//! is given fewer episodes and smaller batches instead of more.
 
 use crate::chunking::ActionChunker;
 use crate::{ActTiming, Action, Observation, Policy, PolicyError};
@@ -260,9 +262,11 @@ impl Batcher {
                 let started = Instant::now();
                 // A panicking model (e.g. CUDA out of memory at a large batch) answers every pending
                 // request with its message instead of silently ending the batching thread.
+                let mut panicked = false;
                 let mut answers =
                     std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| model.predict_batch(&requests)))
                         .unwrap_or_else(|panic| {
+                            panicked = true;
                             let msg = panic
                                 .downcast_ref::<String>()
                                 .cloned()
@@ -283,10 +287,18 @@ impl Batcher {
                     stats.batches.push(replies.len());
                     stats.forward_ms.push(forward_ms);
                 }
-                // the last ~8 forwards weigh most
+                // the last ~8 forwards weigh most; a forward that panicked (out of memory, say) was
+                // quick but served nobody: its replica counts as taking a second or more, so that new
+                // episodes go elsewhere and its batches shrink
                 let before = f64::from_bits(thread_recent.load(Ordering::SeqCst));
                 let ms = f64::from(forward_ms);
-                let recent = if before > 0.0 { 0.875 * before + 0.125 * ms } else { ms };
+                let recent = if panicked {
+                    (2.0 * before).max(1000.0)
+                } else if before > 0.0 {
+                    0.875 * before + 0.125 * ms
+                } else {
+                    ms
+                };
                 thread_recent.store(recent.max(f64::MIN_POSITIVE).to_bits(), Ordering::SeqCst);
                 let forward_batch = replies.len() as u32;
                 let forward_id = FORWARD_IDS.fetch_add(1, Ordering::SeqCst);
@@ -593,6 +605,33 @@ mod tests {
         let stats = replicas.stats();
         assert_eq!(stats[0].episodes + stats[1].episodes, 12);
         assert!(stats[1].summary().starts_with(&format!("{on_fast} episodes, ")), "{}", stats[1].summary());
+    }
+
+    /// Panics on every forward, at once.
+    struct Broken;
+    impl BatchModel for Broken {
+        fn predict_batch(&mut self, _: &[Request]) -> Vec<Result<Vec<Action>, String>> {
+            panic!("CUDA out of memory (simulated)")
+        }
+    }
+
+    #[test]
+    fn a_replica_whose_forwards_panic_takes_fewer_episodes() {
+        let replicas = Replicas::new(vec![
+            Batcher::start(Broken, 8, Duration::from_millis(1)),
+            Batcher::start(Sleepy(20), 8, Duration::from_millis(1)),
+        ]);
+        let mut workers: Vec<BatchedPolicy> =
+            (0..8).map(|_| BatchedPolicy::on_replicas(replicas.clone(), "mixed")).collect();
+        workers[0].reset("task", 0);
+        workers[1].reset("task", 0);
+        assert!(workers[0].act(&Observation::default()).is_err() && workers[1].act(&Observation::default()).is_ok());
+        // the broken replica's quick failure counts as a second per forward, not as speed
+        for w in workers.iter_mut().skip(2) {
+            w.reset("task", 0);
+        }
+        let on_broken = workers.iter().filter(|w| w.replica() == Some(0)).count();
+        assert_eq!(on_broken, 1, "{:?}", workers.iter().map(|w| w.replica()).collect::<Vec<_>>());
     }
 
     #[test]

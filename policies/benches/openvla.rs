@@ -10,6 +10,8 @@
 //! stores the linear layers quantised (`models::quant`); the bench then also prints the weights'
 //! resident size, and with `--agreement` the tokens of the quantised model against the same
 //! checkpoint in the model's dtype on the same inputs (loaded second, after the timings).
+//! `--quantize-block N` quantises N weights at a time in every format (default: int8 in blocks of
+//! `quant::INT8_QUANTIZE_BLOCK`, int4 whole layers), for an A/B of the load's peak GPU memory.
 //! `--fusion SETS` times the language model with each of the `/`-separated launch-saving kernel
 //! sets (`Fusion`: `none`, `all`, or parts joined by `+`: `norm+qkv`) in turn, the model loaded
 //! once (default: its own, all on CUDA); for each set but `none` it also reports the tokens and
@@ -78,6 +80,7 @@ struct Args {
     seconds: f64,
     episode_steps: usize,
     phases: bool,
+    quantize_block: Option<i64>,
 }
 
 fn parse_args() -> Result<Args, String> {
@@ -98,6 +101,7 @@ fn parse_args() -> Result<Args, String> {
         seconds: 60.0,
         episode_steps: 220,
         phases: false,
+        quantize_block: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -132,6 +136,11 @@ fn parse_args() -> Result<Args, String> {
             "--json" => a.json = Some(value()?.into()),
             "--quant" => a.quant = value()?.parse()?,
             "--agreement" => a.agreement = true,
+            "--quantize-block" => {
+                a.quantize_block = Some(
+                    value()?.parse().ok().filter(|&n: &i64| n >= 1).ok_or("--quantize-block: a number of weights >= 1")?,
+                )
+            }
             "--phases" => a.phases = true,
             "--fusion" => {
                 a.fusions = value()?
@@ -594,6 +603,7 @@ fn main() {
         eprintln!("openvla bench: {e}");
         std::process::exit(2)
     });
+    libero_policies::models::quant::override_quantize_block(args.quantize_block);
     let Some(dir) = args.checkpoint.clone() else {
         println!(
             "openvla bench: needs a checkpoint (--checkpoint DIR or LIBERO_OPENVLA_BENCH_CHECKPOINT); the 7B run is \
@@ -781,7 +791,7 @@ fn main() {
         let report = serde_json::json!({
             "implementation": "rust (tch, libtorch)", "model": what, "attention": format!("{attention:?}"), "checkpoint": dir.display().to_string(),
             "device": format!("{:?}", args.device), "dtype": format!("{kind:?}"), "quant": args.quant.to_string(),
-            "load_s": load_s, "reference_agreement": reference_agreement, "quant_agreement": quant_agreement,
+            "quantize_block": args.quantize_block, "load_s": load_s, "reference_agreement": reference_agreement, "quant_agreement": quant_agreement,
             "fusion_agreement": fusion_agreements, "kernel_check": kernel_check,
             "tinygemm_vs_dequantised": tinygemm_check, "results": rows, "phases": phase_rows,
         });

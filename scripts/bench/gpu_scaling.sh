@@ -12,7 +12,10 @@
 #   memory         only quant's first step: the GPU memory one episode needs per weight format
 #                  (QUANTS), the bench at B = 1 in a process of its own; with ALLOC=expandable also
 #                  with PYTORCH_CUDA_ALLOC_CONF=expandable_segments:True (the caching allocator
-#                  grows its segments instead of adding new ones: less memory reserved and unused).
+#                  grows its segments instead of adding new ones: less memory reserved and unused);
+#                  with BLOCKS="int8 int4" also each of those formats quantised both ways, in blocks
+#                  of 16 Mi weights and whole layers (the bench's --quantize-block), in alternating
+#                  order, twice: the A/B of the load's peak on one machine (models::quant).
 #   fused          the language model's launch-saving kernels (`Fusion`, the bench's --fusion), bf16,
 #                  in one process per attention: none (transformers' operations one by one), each
 #                  part alone, and all, SDPA at B = 1, 8, 32, 64 and eager (OpenVLA's own) at
@@ -51,10 +54,12 @@ with_memory() {
   echo "$label peak_mib=$peak idle_mib=$idle model_mib=$((peak - idle))" | tee -a "$out/memory.txt"
 }
 
-# the memory a card needs for one episode (B = 1) with weights stored as $1, in a process of its own
+# the memory a card needs for one episode (B = 1) with weights stored as $1, in a process of its own;
+# $2 labels the variant, $3... are further bench flags
 memory_b1() {
-  with_memory "b1-$1${2:+-$2}" "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --quant "$1" \
-    --batch 1 --warmup 1 --iters 3 > "$out/memory-b1-$1${2:+-$2}.log" 2>&1
+  local q=$1 label=${2:-}; shift 2 || shift $#
+  with_memory "b1-$q${label:+-$label}" "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --quant "$q" \
+    --batch 1 --warmup 1 --iters 3 "$@" > "$out/memory-b1-$q${label:+-$label}.log" 2>&1
 }
 
 for part in "$@"; do
@@ -72,6 +77,12 @@ for part in "$@"; do
         memory_b1 $q
         [ "${ALLOC:-}" = expandable ] || continue
         PYTORCH_CUDA_ALLOC_CONF=expandable_segments:True memory_b1 $q expandable
+      done
+      for q in ${BLOCKS:-}; do
+        for round in 1 2; do # whole layers and blocks alternate: a drift of the machine shows
+          memory_b1 $q "whole-$round" --quantize-block 1000000000000
+          memory_b1 $q "blocks-$round" --quantize-block 16777216
+        done
       done ;;
     fused)
       "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --fusion none/norm/qkv/gate_up/rotary_fma/static_cache/rotary_kernel/norm_kernel/swiglu_kernel/all \

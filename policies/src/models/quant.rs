@@ -15,6 +15,7 @@
 //! of rows at a time ([`INT8_QUANTIZE_BLOCK`]).
 
 use crate::placement::Quantization;
+use std::sync::atomic::{AtomicI64, Ordering};
 use tch::{Device, Kind, Tensor};
 
 /// Inputs per int4 group: 128 (the common choice; bitsandbytes' NF4 blocks, OpenVLA's 4-bit path,
@@ -36,8 +37,20 @@ pub const INT4_TINYGEMM_MAX_ROWS: i64 = 64;
 /// layers, 2026-11-26) to 9,229 MiB in blocks (2026-11-27, another machine of the same kind).
 /// int4 quantises whole layers: in blocks its peak went from 5,989 to 6,461 MiB in the same two
 /// measurements (`data/benchmarks/gpu-two-h100-one-gl-thread-2026-11-27`). Neither pair ran on
-/// one machine: each path stays as measured lower until an A/B on one machine says otherwise.
+/// one machine: each path stays as measured lower until an A/B on one machine says otherwise
+/// (the bench's `--quantize-block`, [`override_quantize_block`]).
 pub const INT8_QUANTIZE_BLOCK: i64 = 1 << 24;
+
+/// Weights every format quantises at once where set (> 0), instead of each format's own
+/// ([`INT8_QUANTIZE_BLOCK`], whole layers for int4): for the bench's A/B of the peak memory of
+/// one format both ways on one machine. Blocks quantise as the whole layer does (a unit test), so
+/// only the memory and the load time can differ.
+static QUANTIZE_BLOCK_OVERRIDE: AtomicI64 = AtomicI64::new(0);
+
+/// Quantise `block` weights at a time in every format from now on (`None`: each format's own).
+pub fn override_quantize_block(block: Option<i64>) {
+    QUANTIZE_BLOCK_OVERRIDE.store(block.filter(|&b| b > 0).unwrap_or(0), Ordering::SeqCst);
+}
 
 /// The weight of a linear layer `[out, in]` (no bias: callers add theirs).
 pub enum Linear {
@@ -61,8 +74,9 @@ pub enum Linear {
 impl Linear {
     /// `weight` `[out, in]` (already on its device, in the model's dtype) stored as `quant` asks.
     pub fn new(weight: Tensor, quant: Quantization) -> Linear {
-        let block = match quant {
-            Quantization::Int8 => INT8_QUANTIZE_BLOCK,
+        let block = match (QUANTIZE_BLOCK_OVERRIDE.load(Ordering::SeqCst), quant) {
+            (set, _) if set > 0 => set,
+            (_, Quantization::Int8) => INT8_QUANTIZE_BLOCK,
             _ => i64::MAX,
         };
         Self::quantized_in_blocks(weight, quant, block)

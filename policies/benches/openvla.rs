@@ -10,8 +10,9 @@
 //! stores the linear layers quantised (`models::quant`); the bench then also prints the weights'
 //! resident size, and with `--agreement` the tokens of the quantised model against the same
 //! checkpoint in the model's dtype on the same inputs (loaded second, after the timings).
-//! `--quantize-block N` quantises N weights at a time in every format (default: int8 in blocks of
-//! `quant::INT8_QUANTIZE_BLOCK`, int4 whole layers), for an A/B of the load's peak GPU memory.
+//! `--quantize-block N` quantises N weights at a time in every format, in whole rows (at least
+//! one; default: int8 in blocks of `quant::INT8_QUANTIZE_BLOCK`, int4 whole layers), for an A/B
+//! of the load's peak GPU memory.
 //! `--fusion SETS` times the language model with each of the `/`-separated launch-saving kernel
 //! sets (`Fusion`: `none`, `all`, or parts joined by `+`: `norm+qkv`) in turn, the model loaded
 //! once (default: its own, all on CUDA); for each set but `none` it also reports the tokens and

@@ -26,9 +26,11 @@
 //! did the process's renders took 218 ms per forward against the other's 168
 //! (`data/benchmarks/gpu-two-h100-cudnn-last-2026-11-27`), and a box may mix cards. A forward's
 //! duration grows with its batch, so the share settles instead of running away to the faster
-//! device; until a replica has run a forward, and for forwards under a millisecond, all count alike.
-//! A forward that panics (out of GPU memory, say) counts as a second or more, so a failing device
-//! is given fewer episodes and smaller batches instead of more.
+//! device. Forwards under a millisecond count as one; a replica that has run none counts as the
+//! others' mean (all alike before any forward). A forward that failed as a whole (it panicked, out
+//! of GPU memory say, or answered every request with an error) counts as a second or more, up to a
+//! minute, so a failing device is given fewer episodes and smaller batches instead of more, and
+//! is tried again once the others hold enough.
 
 use crate::chunking::ActionChunker;
 use crate::{ActTiming, Action, Observation, Policy, PolicyError};
@@ -152,14 +154,17 @@ impl Replicas {
         let known: Vec<f64> = durations.iter().copied().filter(|&ms| ms > 0.0).collect();
         // a replica without a forward yet counts as the others' mean (all alike when none has run)
         let unknown = if known.is_empty() { 1.0 } else { known.iter().sum::<f64>() / known.len() as f64 };
-        let cost = |i: usize| {
-            let ms = if durations[i] > 0.0 { durations[i] } else { unknown };
-            (self.batchers[i].in_progress.load(Ordering::SeqCst) + 1) as f64 * ms.max(1.0)
-        };
-        let i = (1..self.batchers.len()).fold(0, |best, i| if cost(i) < cost(best) { i } else { best });
+        // one snapshot: episodes may end (without `choosing`) while the replicas are compared
+        let costs: Vec<f64> = (self.batchers.iter().zip(&durations))
+            .map(|(b, &ms)| {
+                let ms = if ms > 0.0 { ms } else { unknown };
+                (b.in_progress.load(Ordering::SeqCst) + 1) as f64 * ms.max(1.0)
+            })
+            .collect();
+        let i = (1..costs.len()).fold(0, |best, i| if costs[i] < costs[best] { i } else { best });
         let b = &self.batchers[i];
+        b.stats.lock().unwrap_or_else(|p| p.into_inner()).episodes += 1;
         b.in_progress.fetch_add(1, Ordering::SeqCst);
-        b.stats.lock().expect("stats").episodes += 1;
         i
     }
 
@@ -287,13 +292,15 @@ impl Batcher {
                     stats.batches.push(replies.len());
                     stats.forward_ms.push(forward_ms);
                 }
-                // the last ~8 forwards weigh most; a forward that panicked (out of memory, say) was
-                // quick but served nobody: its replica counts as taking a second or more, so that new
-                // episodes go elsewhere and its batches shrink
+                // the last ~8 forwards weigh most; a forward that failed as a whole (a panic, or
+                // TorchScript's out-of-memory error on every request) was quick but served nobody:
+                // its replica counts as taking a second or more (up to a minute, so that it is tried
+                // again), so that new episodes go elsewhere and its batches shrink
+                let failed = panicked || (!answers.is_empty() && answers.iter().all(Result::is_err));
                 let before = f64::from_bits(thread_recent.load(Ordering::SeqCst));
                 let ms = f64::from(forward_ms);
-                let recent = if panicked {
-                    (2.0 * before).max(1000.0)
+                let recent = if failed {
+                    (2.0 * before).clamp(1000.0, 60_000.0)
                 } else if before > 0.0 {
                     0.875 * before + 0.125 * ms
                 } else {
@@ -551,6 +558,10 @@ mod tests {
             }
         }
         // two episodes end on replica 0 and one on 2: the next two start there, the fewest first
+        // (forwards this quick count alike whatever a loaded machine's scheduler made of them)
+        for b in &replicas.batchers {
+            b.recent_forward_ms.store(0.5f64.to_bits(), Ordering::SeqCst);
+        }
         workers[0].end_episode();
         workers[3].end_episode();
         workers[2].end_episode();
@@ -595,13 +606,20 @@ mod tests {
             w.act(&Observation::default()).unwrap();
         }
         assert_eq!((workers[0].replica(), workers[1].replica()), (Some(0), Some(1)));
-        // the 40 ms replica now weighs (1 + 1) × 40 = 80 against (n + 1) × 4 or more: the next ten
-        // episodes go to the fast one until it holds as many as its forwards are faster
+        // each forward's time went into its replica's average (a sleep takes at least its time)
+        let measured: Vec<f64> = replicas.batchers.iter().map(|b| b.recent_forward_ms()).collect();
+        assert!(measured[0] >= 40.0 && measured[1] >= 4.0, "{measured:?}");
+        // the exact figures from here on, so that a loaded machine's late wake-ups change nothing:
+        // the 40 ms replica weighs (1 + 1) × 40 = 80 against the other's (n + 1) × 4, so the next
+        // ten episodes all go to the fast one
+        for (b, ms) in replicas.batchers.iter().zip([40.0f64, 4.0]) {
+            b.recent_forward_ms.store(ms.to_bits(), Ordering::SeqCst);
+        }
         for w in workers.iter_mut().skip(2) {
             w.reset("task", 0);
         }
         let on_fast = workers.iter().filter(|w| w.replica() == Some(1)).count();
-        assert!(on_fast >= 8, "the 4 ms replica has {on_fast} of 12 episodes");
+        assert_eq!(on_fast, 11, "the 4 ms replica has {on_fast} of 12 episodes");
         let stats = replicas.stats();
         assert_eq!(stats[0].episodes + stats[1].episodes, 12);
         assert!(stats[1].summary().starts_with(&format!("{on_fast} episodes, ")), "{}", stats[1].summary());
@@ -632,6 +650,22 @@ mod tests {
         }
         let on_broken = workers.iter().filter(|w| w.replica() == Some(0)).count();
         assert_eq!(on_broken, 1, "{:?}", workers.iter().map(|w| w.replica()).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn a_forward_that_refuses_every_request_counts_as_a_second_up_to_a_minute() {
+        let batcher = Batcher::start(Echo, 4, Duration::from_millis(1));
+        let mut p = BatchedPolicy::new(batcher.clone(), 1, "echo");
+        p.reset("fail", 0);
+        assert!(p.act(&Observation::default()).is_err());
+        assert_eq!(batcher.recent_forward_ms(), 1000.0);
+        batcher.recent_forward_ms.store(50_000f64.to_bits(), Ordering::SeqCst);
+        p.reset("fail", 0);
+        assert!(p.act(&Observation::default()).is_err());
+        assert_eq!(batcher.recent_forward_ms(), 60_000.0, "capped, so that the replica is tried again");
+        p.reset("ok", 0);
+        assert!(p.act(&Observation::default()).is_ok());
+        assert!(batcher.recent_forward_ms() < 60_000.0, "a forward that served its requests counts as its time");
     }
 
     #[test]

@@ -14,8 +14,8 @@
 #                  with PYTORCH_CUDA_ALLOC_CONF=expandable_segments:True (the caching allocator
 #                  grows its segments instead of adding new ones: less memory reserved and unused);
 #                  with BLOCKS="int8 int4" also each of those formats quantised both ways, in blocks
-#                  of 16 Mi weights and whole layers (the bench's --quantize-block), in alternating
-#                  order, twice: the A/B of the load's peak on one machine (models::quant).
+#                  of 16 Mi weights and whole layers (the bench's --quantize-block), whole, blocks,
+#                  blocks, whole: the A/B of the load's peak on one machine (models::quant).
 #   fused          the language model's launch-saving kernels (`Fusion`, the bench's --fusion), bf16,
 #                  in one process per attention: none (transformers' operations one by one), each
 #                  part alone, and all, SDPA at B = 1, 8, 32, 64 and eager (OpenVLA's own) at
@@ -79,10 +79,11 @@ for part in "$@"; do
         PYTORCH_CUDA_ALLOC_CONF=expandable_segments:True memory_b1 $q expandable
       done
       for q in ${BLOCKS:-}; do
-        for round in 1 2; do # whole layers and blocks alternate: a drift of the machine shows
-          memory_b1 $q "whole-$round" --quantize-block 1000000000000
-          memory_b1 $q "blocks-$round" --quantize-block 16777216
-        done
+        # whole, blocks, blocks, whole: a steady drift of the machine weighs on both alike
+        memory_b1 $q whole-1 --quantize-block 1000000000000
+        memory_b1 $q blocks-1 --quantize-block 16777216
+        memory_b1 $q blocks-2 --quantize-block 16777216
+        memory_b1 $q whole-2 --quantize-block 1000000000000
       done ;;
     fused)
       "$BENCH" --checkpoint "$ckpt" --device cuda --attention sdpa --fusion none/norm/qkv/gate_up/rotary_fma/static_cache/rotary_kernel/norm_kernel/swiglu_kernel/all \

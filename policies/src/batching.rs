@@ -583,7 +583,7 @@ mod tests {
         assert!(replicas.batchers.iter().all(|b| b.in_progress.load(Ordering::SeqCst) == 0));
     }
 
-    /// Takes `0` ms per forward.
+    /// Takes its number of milliseconds per forward.
     struct Sleepy(u64);
     impl BatchModel for Sleepy {
         fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {

@@ -7,8 +7,8 @@
 //!
 //! - **Devices.** One model replica per listed device, each behind its own batcher; an episode is
 //!   served by one replica from its start to its end, the replica with the least (episodes in
-//!   progress + 1) × recent forward ms when it starts (`batching::Replicas`). A device may be listed twice (two replicas on
-//!   one GPU, when one replica's host work leaves the GPU idle).
+//!   progress + 1) × recent forward ms when it starts (`batching::Replicas`). A device may be
+//!   listed twice (two replicas on one GPU, when one replica's host work leaves the GPU idle).
 //! - **Quantisation.** Weight-only, of the linear layers (`models::quant`): int8 per output
 //!   channel, int4 in groups of (up to) 128 along the input; activations stay in the model's dtype. For
 //!   8–16 GB cards: OpenVLA-7B's weights take ~15 GB in bf16.

@@ -24,9 +24,10 @@
 //! forward's duration) is least: alike devices share the episodes evenly, and a slower one takes
 //! fewer. Devices of one machine are not alike in a run: on two H100s the replica whose GPU also
 //! did the process's renders took 218 ms per forward against the other's 168
-//! (`data/benchmarks/gpu-two-h100-cudnn-last-2026-11-27`), and a box may mix cards. A forward's
-//! duration grows with its batch, so the share settles instead of running away to the faster
-//! device. Forwards under a millisecond count as one; a replica that has run none counts as the
+//! (`data/benchmarks/gpu-two-h100-cudnn-last-2026-11-27`), and a box may mix cards. Split evenly,
+//! two GPUs ran 1.75× one; weighted, the other GPU took 132–136 of 240 episodes and two ran 1.91×
+//! and 1.88× (`data/benchmarks/gpu-two-h100-weighted-2026-11-28`). A forward's duration grows with
+//! its batch, so the share settles instead of running away to the faster device. Forwards under a millisecond count as one; a replica that has run none counts as the
 //! others' mean (all alike before any forward). A forward that failed as a whole (it panicked, out
 //! of GPU memory say, or answered every request with an error) counts as a second or more, up to a
 //! minute, so a failing device is given fewer episodes and smaller batches instead of more, and

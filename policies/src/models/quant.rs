@@ -36,9 +36,10 @@ pub const INT4_TINYGEMM_MAX_ROWS: i64 = 64;
 /// temporaries took. OpenVLA-7B int8's peak GPU memory at one episode went from 9,707 MiB (whole
 /// layers, 2026-11-26) to 9,229 MiB in blocks (2026-11-27, another machine of the same kind).
 /// int4 quantises whole layers: in blocks its peak went from 5,989 to 6,461 MiB in the same two
-/// measurements (`data/benchmarks/gpu-two-h100-one-gl-thread-2026-11-27`). Neither pair ran on
-/// one machine: each path stays as measured lower until an A/B on one machine says otherwise
-/// (the bench's `--quantize-block`, [`override_quantize_block`]).
+/// measurements (`data/benchmarks/gpu-two-h100-one-gl-thread-2026-11-27`). An A/B on one machine
+/// (the bench's `--quantize-block`, [`override_quantize_block`]; whole, blocks, blocks, whole)
+/// confirmed both: int8 9,229 MiB in blocks against 9,621 whole, int4 5,893 whole against 6,461
+/// in blocks, each repeat identical (`data/benchmarks/gpu-quant-blocks-h100-2026-11-28`).
 pub const INT8_QUANTIZE_BLOCK: i64 = 1 << 24;
 
 /// Weights every format quantises at once where set (> 0), instead of each format's own

@@ -29,10 +29,10 @@
 //! and 1.88× (`data/benchmarks/gpu-two-h100-weighted-2026-11-28`). A forward's duration grows with
 //! its batch, so the share settles instead of running away to the faster device. Forwards under a
 //! millisecond count as one; a replica that has run none counts as the others' mean (all alike
-//! before any forward). A forward that failed as a whole (it panicked, out
-//! of GPU memory say, or answered every request with an error) counts as a second or more, up to a
-//! minute, so a failing device is given fewer episodes and smaller batches instead of more, and
-//! is tried again once the others hold enough.
+//! before any forward). A forward that failed as a whole (it panicked, out of GPU memory say, or
+//! answered every request with an error) counts as a second or more, up to a minute, so a failing
+//! device is given fewer episodes and smaller batches instead of more, and is tried again once the
+//! others hold enough.
 
 use crate::chunking::ActionChunker;
 use crate::{ActTiming, Action, Observation, Policy, PolicyError};

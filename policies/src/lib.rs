@@ -11,6 +11,7 @@
 //! | the published loops' transforms: images, state, action un-normalisation, gripper | [`preprocess`], [`postprocess`] |
 //! | driving a model: open-loop chunks, one batched forward for many episodes, replicas on several devices | [`chunking`], [`batching`] |
 //! | where a model runs and how its weights are stored (`devices=`, `quant=`) | [`placement`], `models::quant` |
+//! | libtorch's CUDA backend loaded at start; no silent CPU fallback of a model | `cuda_backend`, `models::cpu_fallback` (feature `torch`) |
 //! | in-process model ports on libtorch: TorchScript, OpenVLA, OpenVLA-OFT | `models` (feature `torch`) |
 //! | clients of policy servers: openpi, vla-eval, starVLA | [`remote`] |
 //! | policies without a model: baselines, the privileged scripted [`Expert`] | `baselines.rs`, `expert/`, [`scene`] |
@@ -37,6 +38,8 @@ pub mod aloha;
 mod baselines;
 pub mod batching;
 pub mod chunking;
+#[cfg(feature = "torch")]
+pub mod cuda_backend;
 mod expert;
 #[cfg(feature = "torch")]
 pub mod models;

@@ -23,12 +23,15 @@ pub enum PolicySpec {
     NanAt(u32),
     /// Diagnostic: the expert forced to let go early in its first carry (real `dropped` failures).
     ExpertDrop,
-    /// A TorchScript module with its `model.json` manifest (`torchscript:<file>[?batch=N[&wait_ms=W]]`;
-    /// with `batch`, the rollout workers' queries share forwards of up to N episodes).
-    TorchScript { file: std::path::PathBuf, batch: Option<Batching> },
+    /// A TorchScript module with its `model.json` manifest
+    /// (`torchscript:<file>[?batch=N[&wait_ms=W]][&devices=D]`; with `batch`, the rollout workers'
+    /// queries share forwards of up to N episodes; `devices`: the one device it runs on, e.g.
+    /// `devices=cpu` to run it on the CPU on purpose, see `models::cpu_fallback`).
+    TorchScript { file: std::path::PathBuf, batch: Option<Batching>, device: Option<ModelDevice> },
     /// OpenVLA in process from a Hugging Face checkpoint directory
-    /// (`openvla:<dir>[?unnorm=<key>][&batch=N[&wait_ms=W][&devices=D,D...]][&quant=int8|int4]`; with
-    /// `batch`, the rollout workers' queries share forwards of up to N episodes).
+    /// (`openvla:<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]][&devices=D,D...][&quant=int8|int4]`;
+    /// with `batch`, the rollout workers' queries share forwards of up to N episodes; several
+    /// devices need `batch`).
     OpenVla(CheckpointOptions),
     /// OpenVLA-OFT in process from its released LIBERO checkpoint directory (the HF files,
     /// `action_head--*.pt`, `proprio_projector--*.pt`, `dataset_statistics.json`; the same options
@@ -78,7 +81,9 @@ pub struct CheckpointOptions {
     /// Weight-only quantisation of the linear layers (`quant=int8|int4`).
     pub quant: Quantization,
     /// One model replica per device, each with its own batcher (`devices=cuda:0,cuda:1`, with
-    /// `batch`); empty: one model on the default device (the first GPU, else the CPU).
+    /// `batch`; one device needs no `batch`); empty: one model on the default device (the first
+    /// GPU, else the CPU, which `models::cpu_fallback` refuses on a GPU machine and for a large
+    /// model: `devices=cpu` runs it there on purpose).
     pub devices: Vec<ModelDevice>,
     /// The language model's attention (`attention=eager|sdpa`); `None`: the model's default on
     /// its device ([`Attention::model_default`]).
@@ -172,7 +177,9 @@ impl PolicySpec {
             PolicySpec::Expert => Box::new(Expert::new()),
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
             PolicySpec::ExpertDrop => Box::new(ExpertDrop::new()),
-            PolicySpec::TorchScript { file, batch } => load_torchscript(file, *batch, &self.to_string())?,
+            PolicySpec::TorchScript { file, batch, device } => {
+                load_torchscript(file, *batch, *device, &self.to_string())?
+            }
             PolicySpec::OpenVla(o) => load_openvla(o, &self.to_string())?,
             PolicySpec::Oft(o) => load_oft(o, &self.to_string())?,
             PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
@@ -197,8 +204,8 @@ impl PolicySpec {
                 ..OpenpiConfig::new(url.clone())
             })?),
             #[cfg(feature = "torch")]
-            PolicySpec::TorchScript { file, batch: None } => {
-                Box::new(crate::models::torchscript_aloha::TorchScriptAloha::load(file)?)
+            PolicySpec::TorchScript { file, batch: None, device } => {
+                Box::new(crate::models::torchscript_aloha::TorchScriptAloha::load_on(file, *device)?)
             }
             _ => {
                 return Err(PolicyError {
@@ -237,7 +244,7 @@ impl PolicySpec {
             },
             Benchmark::AlohaSim => match self {
                 PolicySpec::Random | PolicySpec::Expert | PolicySpec::NanAt(_) | PolicySpec::Openpi { .. } => Ok(()),
-                PolicySpec::TorchScript { file, batch } => match (module_for(file)?, batch) {
+                PolicySpec::TorchScript { file, batch, .. } => match (module_for(file)?, batch) {
                     (Benchmark::AlohaSim, None) => Ok(()),
                     (Benchmark::AlohaSim, Some(_)) => Err(format!(
                         "{self}: ?batch= shares forwards between LIBERO episodes only; on ALOHA-sim run torchscript:{} (one forward per episode query)",
@@ -292,8 +299,8 @@ impl PolicySpec {
                 .identity())
             }
             #[cfg(feature = "torch")]
-            (PolicySpec::TorchScript { file, .. }, Benchmark::AlohaSim) => {
-                Ok(crate::models::torchscript_aloha::TorchScriptAloha::load(file)?.identity())
+            (PolicySpec::TorchScript { file, device, .. }, Benchmark::AlohaSim) => {
+                Ok(crate::models::torchscript_aloha::TorchScriptAloha::load_on(file, *device)?.identity())
             }
             (_, Benchmark::AlohaSim) => Ok(self.aloha_identity()),
             (_, Benchmark::Libero) => self.resolve_libero_identity(),
@@ -332,8 +339,9 @@ impl PolicySpec {
             PolicySpec::VlaEval { url } => Ok(VlaEvalPolicy::connect(VlaEvalConfig::new(url.clone()))?.identity()),
             PolicySpec::StarVla(o) => Ok(StarVlaPolicy::connect(o.config())?.identity()),
             #[cfg(feature = "torch")]
-            PolicySpec::TorchScript { file, batch } => {
-                Ok(crate::models::torchscript::TorchScriptModel::load(file)?.identity(batch.map(|b| b.max_episodes)))
+            PolicySpec::TorchScript { file, batch, device } => {
+                Ok(crate::models::torchscript::TorchScriptModel::load_on(file, *device)?
+                    .identity(batch.map(|b| b.max_episodes)))
             }
             #[cfg(feature = "torch")]
             PolicySpec::OpenVla(o) => {
@@ -427,9 +435,13 @@ impl fmt::Display for PolicySpec {
                     false => write!(f, "{kind}:{}?{}", o.dir.display(), options.join("&")),
                 }
             }
-            PolicySpec::TorchScript { file, batch: None } => write!(f, "torchscript:{}", file.display()),
-            PolicySpec::TorchScript { file, batch: Some(b) } => {
-                write!(f, "torchscript:{}?{}", file.display(), b.options().join("&"))
+            PolicySpec::TorchScript { file, batch, device } => {
+                let mut options: Vec<String> = batch.iter().flat_map(Batching::options).collect();
+                options.extend(device.iter().map(|d| format!("devices={d}")));
+                match options.is_empty() {
+                    true => write!(f, "torchscript:{}", file.display()),
+                    false => write!(f, "torchscript:{}?{}", file.display(), options.join("&")),
+                }
             }
             PolicySpec::Openpi { url, replan_steps: None } => write!(f, "openpi:{url}"),
             PolicySpec::Openpi { url, replan_steps: Some(n) } => write!(f, "openpi:{url}?replan={n}"),
@@ -467,7 +479,7 @@ impl FromStr for PolicySpec {
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => Err(format!(
-                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1], torchscript:<model.pt>[?batch=N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N[&devices=cuda:0,cuda:1]][&quant=int8|int4], oft:<checkpoint dir>[?unnorm=<key>][&batch=N[&devices=...]][&quant=int8|int4]; diagnostics: nan-at:<policy step>, expert-drop"
+                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1], torchscript:<model.pt>[?batch=N][&devices=cpu|cuda:N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N][&devices=cpu|cuda:0,cuda:1][&quant=int8|int4], oft:<checkpoint dir>[?unnorm=<key>][&batch=N][&devices=...][&quant=int8|int4]; diagnostics: nan-at:<policy step>, expert-drop"
                 )),
             },
         }
@@ -500,9 +512,11 @@ fn placement_identity(
     policy: &str,
 ) -> Result<(), PolicyError> {
     let (mut devices, mut on_gpu) = (Vec::new(), Vec::new());
+    let size =
+        crate::models::cpu_fallback::ModelSize::of_checkpoint(if policy == "oft" { "oft" } else { "openvla" }, &o.dir);
     for d in o.replica_devices() {
-        let (device, kind) =
-            crate::models::device_and_dtype(d).map_err(|detail| PolicyError { policy: policy.into(), detail })?;
+        let (device, kind) = crate::models::device_and_dtype(d, &size)
+            .map_err(|detail| PolicyError { policy: policy.into(), detail })?;
         devices.push(format!("{device:?}"));
         on_gpu.push(device.is_cuda());
         identity["dtype"] = serde_json::json!(format!("{kind:?}"));
@@ -532,12 +546,13 @@ fn placement_identity(
 fn load_torchscript(
     file: &std::path::Path,
     batch: Option<Batching>,
+    device: Option<ModelDevice>,
     spec: &str,
 ) -> Result<Box<dyn Policy>, PolicyError> {
     use crate::models::torchscript::{TorchScriptModel, TorchScriptPolicy};
     match batch {
-        None => Ok(Box::new(TorchScriptPolicy::load(file)?)),
-        Some(n) => batched(spec, n, &[None], "torchscript", |_| TorchScriptModel::load(file)),
+        None => Ok(Box::new(TorchScriptPolicy::load_on(file, device)?)),
+        Some(n) => batched(spec, n, &[device], "torchscript", |d| TorchScriptModel::load_on(file, d)),
     }
 }
 
@@ -547,7 +562,7 @@ fn load_openvla(o: &CheckpointOptions, spec: &str) -> Result<Box<dyn Policy>, Po
     let (dir, key, quant) = (&o.dir, &o.unnorm_key, o.quant);
     match o.batch {
         None => {
-            let mut policy = OpenVlaPolicy::load(dir, key.clone(), None, quant)?;
+            let mut policy = OpenVlaPolicy::load(dir, key.clone(), o.devices.first().copied(), quant)?;
             if let Some(a) = o.attention {
                 policy.set_attention(a);
             }
@@ -569,7 +584,7 @@ fn load_oft(o: &CheckpointOptions, spec: &str) -> Result<Box<dyn Policy>, Policy
     let (dir, key, quant) = (&o.dir, &o.unnorm_key, o.quant);
     match o.batch {
         None => {
-            let mut policy = OftPolicy::load(dir, key.clone(), None, quant)?;
+            let mut policy = OftPolicy::load(dir, key.clone(), o.devices.first().copied(), quant)?;
             if let Some(a) = o.attention {
                 policy.set_attention(a);
             }
@@ -602,7 +617,12 @@ fn load_openvla(_: &CheckpointOptions, _: &str) -> Result<Box<dyn Policy>, Polic
 }
 
 #[cfg(not(feature = "torch"))]
-fn load_torchscript(_: &std::path::Path, _: Option<Batching>, _: &str) -> Result<Box<dyn Policy>, PolicyError> {
+fn load_torchscript(
+    _: &std::path::Path,
+    _: Option<Batching>,
+    _: Option<ModelDevice>,
+    _: &str,
+) -> Result<Box<dyn Policy>, PolicyError> {
     Err(PolicyError {
         policy: "torchscript".into(),
         detail: "this build has no libtorch (built without the `torch` feature)".into(),
@@ -648,8 +668,9 @@ fn option_help(name: &str) -> &'static str {
             "attention=eager|sdpa (the language model's attention; default: sdpa on a GPU, eager on the CPU for openvla, sdpa for oft)"
         }
         "devices" => {
-            "devices=cuda:0,cuda:1 (with batch: one model replica per device; cpu, cuda or cuda:N, a device may repeat)"
+            "devices=cuda:0,cuda:1 (where the model runs: cpu, cuda or cuda:N; several with batch, one model replica per device, a device may repeat; devices=cpu runs a model on the CPU on purpose)"
         }
+        "device" => "devices=D (the one device the module runs on: cpu, cuda or cuda:N)",
         _ => "?",
     }
 }
@@ -675,7 +696,7 @@ fn batching(
     }
 }
 
-/// `<dir>[?unnorm=<key>][&batch=N[&wait_ms=W][&devices=...]][&quant=...]` of `openvla:...`
+/// `<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]][&devices=...][&quant=...]` of `openvla:...`
 /// (options in any order).
 fn parse_openvla(rest: &str) -> Result<PolicySpec, String> {
     Ok(PolicySpec::OpenVla(checkpoint_options("openvla", rest)?))
@@ -707,9 +728,9 @@ fn checkpoint_options(kind: &str, rest: &str) -> Result<CheckpointOptions, Strin
         Some(a) => Some(a.parse().map_err(|e| bad("attention", e))?),
     };
     let batch = batching(kind, rest, &options)?;
-    if !devices.is_empty() && batch.is_none() {
+    if devices.len() > 1 && batch.is_none() {
         return Err(format!(
-            "{kind}:{rest}: devices needs batch=N (each device's replica serves its episodes through its own batcher)"
+            "{kind}:{rest}: several devices need batch=N (each device's replica serves its episodes through its own batcher)"
         ));
     }
     Ok(CheckpointOptions { dir: dir.into(), unnorm_key, batch, quant, devices, attention })
@@ -734,10 +755,19 @@ fn torchscript_benchmark(file: &std::path::Path) -> Result<Benchmark, String> {
     }
 }
 
-/// `<file>[?batch=N[&wait_ms=W]]` of `torchscript:...`.
+/// `<file>[?batch=N[&wait_ms=W]][&devices=D]` of `torchscript:...`: one device (the module is
+/// what its author exported; it gets one replica).
 fn parse_torchscript(rest: &str) -> Result<PolicySpec, String> {
-    let (file, options) = model_options("torchscript", rest, &["batch", "wait_ms"])?;
-    Ok(PolicySpec::TorchScript { file: file.into(), batch: batching("torchscript", rest, &options)? })
+    let (file, options) = model_options("torchscript", rest, &["batch", "wait_ms", "devices"])?;
+    let device = match options.get("devices") {
+        None => None,
+        Some(d) => match parse_devices(d) {
+            Ok(devices) if devices.len() == 1 => Some(devices[0]),
+            Ok(_) => return Err(format!("torchscript:{rest}: expected {} (one device)", option_help("device"))),
+            Err(e) => return Err(format!("torchscript:{rest}: expected {} ({e})", option_help("device"))),
+        },
+    };
+    Ok(PolicySpec::TorchScript { file: file.into(), batch: batching("torchscript", rest, &options)?, device })
 }
 
 /// `ws://host:port[?replan=N]` of `openpi:...`.
@@ -880,6 +910,27 @@ mod tests {
         let p: PolicySpec = "oft:/c?batch=4&devices=cpu,cpu&quant=int8".parse().unwrap();
         assert_eq!(p.to_string(), "oft:/c?batch=4&devices=cpu,cpu&quant=int8");
         assert_eq!(p.identity()["devices"], "cpu,cpu");
+        // one device needs no batcher: `devices=cpu` is how a model runs on the CPU on purpose
+        let p: PolicySpec = "openvla:/c?devices=cpu".parse().unwrap();
+        let PolicySpec::OpenVla(o) = &p else { panic!("{p:?}") };
+        assert_eq!((o.devices.as_slice(), o.batch), (&[ModelDevice::Cpu][..], None));
+        assert_eq!(p.to_string(), "openvla:/c?devices=cpu");
+        // a TorchScript module takes one device, with or without batch
+        for (text, device, printed) in [
+            ("torchscript:/m.pt?devices=cpu", Some(ModelDevice::Cpu), "torchscript:/m.pt?devices=cpu"),
+            (
+                "torchscript:/m.pt?devices=cuda&batch=4",
+                Some(ModelDevice::Cuda(0)),
+                "torchscript:/m.pt?batch=4&devices=cuda:0",
+            ),
+            ("torchscript:/m.pt?batch=4", None, "torchscript:/m.pt?batch=4"),
+        ] {
+            let p: PolicySpec = text.parse().unwrap();
+            let PolicySpec::TorchScript { device: d, .. } = &p else { panic!("{p:?}") };
+            assert_eq!(*d, device, "{text}");
+            assert_eq!(p.to_string(), printed);
+            assert_eq!(printed.parse::<PolicySpec>().unwrap(), p);
+        }
     }
 
     #[test]
@@ -956,7 +1007,9 @@ mod tests {
             ("oft:/c?unnorm=", "unnorm=<dataset key>"),
             ("oft:/c?replan=8", "unknown option"),
             ("torchscript:/m.pt?batch=0", "batch=N"),
-            ("openvla:/c?devices=cuda:0,cuda:1", "devices needs batch=N"),
+            ("openvla:/c?devices=cuda:0,cuda:1", "several devices need batch=N"),
+            ("torchscript:/m.pt?devices=cpu,cuda:0", "one device"),
+            ("torchscript:/m.pt?devices=gpu", "cuda:N"),
             ("openvla:/c?batch=2&devices=gpu0", "cuda:N"),
             ("oft:/c?quant=int2", "int8 or int4"),
             ("torchscript:/m.pt?quant=int8", "unknown option"),

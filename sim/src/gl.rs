@@ -173,6 +173,12 @@ fn egl_devices(lib: &Egl) -> Option<Vec<(*mut c_void, DeviceInfo)>> {
     Some((0..n as usize).map(|index| (devices[index], info(index))).collect())
 }
 
+/// The EGL devices this machine lists, in EGL's order (what `MUJOCO_EGL_DEVICE_ID` indexes);
+/// `None` where EGL cannot list devices (Mesa's surfaceless platform is then used).
+pub fn devices() -> Result<Option<Vec<DeviceInfo>>, SimError> {
+    Ok(egl_devices(library()?).map(|all| all.into_iter().map(|(_, info)| info).collect()))
+}
+
 /// The device the process's next context (or [`crate::gl_thread::GlThread`]) takes: see
 /// [`choose_device`]. `None` where EGL cannot list devices (Mesa's surfaceless platform then).
 pub fn next_device() -> Result<Option<DeviceInfo>, SimError> {

@@ -28,9 +28,17 @@
 //! - `replan_steps` of each chunk are executed before the module runs again ([`ActionChunker`]).
 //! - `benchmark`: `libero` (the default). A module for ALOHA-sim says `aloha_sim` and has its
 //!   own manifest form ([`super::torchscript_aloha`]).
+//!
+//! Where it runs: the policy string's `devices=D` (one device: `cpu`, `cuda` or `cuda:N`), else
+//! the first GPU libtorch sees, else the CPU. Landing on the CPU unasked is refused on a GPU
+//! machine (libtorch's CUDA backend did not load) and for a file of 4 GB or more (a billion fp32
+//! parameters): `devices=cpu` is how to ask ([`super::cpu_fallback`]). One device only, also with
+//! `batch=N`: a module's forward is whatever its author exported, so one replica is what it gets.
 
 use crate::batching::BatchModel;
 use crate::chunking::ActionChunker;
+use crate::models::cpu_fallback::ModelSize;
+use crate::placement::ModelDevice;
 use crate::postprocess::{ActionStats, Gripper, NormStats, postprocess_action};
 use crate::preprocess::{ImagePipeline, QuatSign, RgbImage, libero_state, proprio::wxyz_to_xyzw};
 use crate::{Action, CameraImage, Observation, Policy, PolicyError};
@@ -184,12 +192,14 @@ pub(crate) fn read_manifest(model: &Path) -> Result<(PathBuf, String), PolicyErr
     Ok((path, text))
 }
 
-/// `file` loaded by libtorch on the GPU when there is one (in eval mode), the device, and the
-/// file's sha256 (the identity's).
-pub(crate) fn load_module(file: &Path) -> Result<(CModule, Device, String), PolicyError> {
+/// `file` loaded by libtorch (in eval mode) on `device` (`None`: the first GPU when there is one,
+/// else the CPU, which [`super::model_device`] refuses on a GPU machine or for a module of a
+/// billion parameters or more, unless asked for with `devices=cpu`), the device, and the file's
+/// sha256 (the identity's). The module computes in the dtype it was saved in, on either device.
+pub(crate) fn load_module(file: &Path, device: Option<ModelDevice>) -> Result<(CModule, Device, String), PolicyError> {
+    let device = super::model_device(device, &ModelSize::of_torchscript(file)).map_err(err)?;
     let bytes = std::fs::read(file).map_err(|e| err(format!("{}: {e}", file.display())))?;
     let sha256 = format!("{:x}", Sha256::digest(&bytes));
-    let device = Device::cuda_if_available();
     let mut module = CModule::load_on_device(file, device)
         .map_err(|e| err(format!("{} is not a TorchScript module libtorch 2.11 can load: {e}", file.display())))?;
     module.set_eval();
@@ -219,9 +229,15 @@ pub struct TorchScriptModel {
 impl TorchScriptModel {
     /// Load `file` and its manifest, on the GPU when there is one.
     pub fn load(file: &Path) -> Result<Self, PolicyError> {
+        Self::load_on(file, None)
+    }
+
+    /// Load `file` and its manifest on `device` (the spec's `devices=`; `None`: the GPU when
+    /// there is one).
+    pub fn load_on(file: &Path, device: Option<ModelDevice>) -> Result<Self, PolicyError> {
         let (manifest_path, text) = read_manifest(file)?;
         let manifest = TorchScriptManifest::parse(&text, &manifest_path)?;
-        let (module, device, sha256) = load_module(file)?;
+        let (module, device, sha256) = load_module(file, device)?;
         Ok(TorchScriptModel { module, manifest, device, file: file.to_path_buf(), sha256 })
     }
 
@@ -350,7 +366,12 @@ pub struct TorchScriptPolicy {
 
 impl TorchScriptPolicy {
     pub fn load(file: &Path) -> Result<Self, PolicyError> {
-        let model = TorchScriptModel::load(file)?;
+        Self::load_on(file, None)
+    }
+
+    /// [`Self::load`] on `device` (the spec's `devices=`).
+    pub fn load_on(file: &Path, device: Option<ModelDevice>) -> Result<Self, PolicyError> {
+        let model = TorchScriptModel::load_on(file, device)?;
         let chunker = ActionChunker::new(model.replan_steps());
         Ok(TorchScriptPolicy { model, chunker })
     }

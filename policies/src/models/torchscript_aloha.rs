@@ -131,9 +131,14 @@ pub struct TorchScriptAloha {
 impl TorchScriptAloha {
     /// Load `file` and its ALOHA-sim manifest, on the GPU when there is one.
     pub fn load(file: &Path) -> Result<Self, PolicyError> {
+        Self::load_on(file, None)
+    }
+
+    /// [`Self::load`] on `device` (the spec's `devices=`).
+    pub fn load_on(file: &Path, device: Option<crate::placement::ModelDevice>) -> Result<Self, PolicyError> {
         let (manifest_path, text) = read_manifest(file)?;
         let manifest = AlohaManifest::parse(&text, &manifest_path)?;
-        let (module, device, sha256) = load_module(file)?;
+        let (module, device, sha256) = load_module(file, device)?;
         let chunker = ActionChunker::new(manifest.replan_steps);
         Ok(TorchScriptAloha { module, manifest, device, file: file.to_path_buf(), sha256, chunker })
     }

@@ -6,6 +6,7 @@
 
 use super::{OpenVlaModel, OpenVlaPrediction};
 use crate::batching::{BatchModel, Preparer, Request};
+use crate::models::cpu_fallback::ModelSize;
 use crate::models::{device_and_dtype, files_hash};
 use crate::placement::{ModelDevice, Quantization};
 use crate::postprocess::Gripper;
@@ -43,7 +44,7 @@ impl OpenVlaPolicy {
         device: Option<ModelDevice>,
         quant: Quantization,
     ) -> Result<Self, PolicyError> {
-        let (device, dtype) = device_and_dtype(device).map_err(err)?;
+        let (device, dtype) = device_and_dtype(device, &ModelSize::of_checkpoint(NAME, dir)).map_err(err)?;
         let model = OpenVlaModel::load_quantized(dir, device, dtype, quant).map_err(|e| err(e.to_string()))?;
         check_unnorm_key(model.config(), unnorm_key.as_deref())?;
         Ok(OpenVlaPolicy { model, unnorm_key, instruction: String::new() })

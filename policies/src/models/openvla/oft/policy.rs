@@ -11,6 +11,7 @@
 use super::{NUM_ACTIONS_CHUNK, OftModel, OftPrediction, OftQuery, PROPRIO_DIM};
 use crate::batching::{BatchModel, Preparer, Request};
 use crate::chunking::ActionChunker;
+use crate::models::cpu_fallback::ModelSize;
 use crate::models::{device_and_dtype, files_hash};
 use crate::placement::{ModelDevice, Quantization};
 use crate::postprocess::Gripper;
@@ -84,7 +85,7 @@ impl OftPolicy {
         device: Option<ModelDevice>,
         quant: Quantization,
     ) -> Result<Self, PolicyError> {
-        let (device, dtype) = device_and_dtype(device).map_err(err)?;
+        let (device, dtype) = device_and_dtype(device, &ModelSize::of_checkpoint(NAME, dir)).map_err(err)?;
         let model = OftModel::load_quantized(dir, device, dtype, quant).map_err(rename)?;
         model.stats(unnorm_key.as_deref()).map_err(rename)?;
         Ok(OftPolicy { model, unnorm_key, instruction: String::new(), chunker: ActionChunker::new(NUM_ACTIONS_CHUNK) })

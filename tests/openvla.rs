@@ -9,7 +9,7 @@ use libero_e2e::{ok, pipeline, repo_root, single_and_batched_steps, sql_rows, te
 use std::path::PathBuf;
 use std::process::Command;
 
-fn tiny_checkpoint(dir: &std::path::Path) -> PathBuf {
+pub(crate) fn tiny_checkpoint(dir: &std::path::Path) -> PathBuf {
     let venv =
         std::env::var_os("LIBERO_OPENVLA_VENV").map(PathBuf::from).unwrap_or_else(|| repo_root().join(".openvla-venv"));
     let py = venv.join("bin/python");
@@ -106,7 +106,10 @@ fn replicas_serve_their_own_episodes_and_quantised_weights_run_through_the_pipel
     }
     assert_eq!(single, on_replicas, "an episode's actions depend on its replica");
     let identity = sql_rows(&d.join("replicas"), "SELECT policy_identity FROM manifest", &[]).concat().join(",");
-    assert!(identity.contains("(episodes in progress + 1) x recent forward ms") && identity.matches("Cpu").count() == 2, "{identity}");
+    assert!(
+        identity.contains("(episodes in progress + 1) x recent forward ms") && identity.matches("Cpu").count() == 2,
+        "{identity}"
+    );
 
     for quant in ["int8", "int4"] {
         let run = d.join(quant);

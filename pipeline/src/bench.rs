@@ -13,19 +13,55 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline bench sim --python none          # Rust env and raw MuJoCo only
+  pipeline bench run --run runs/pi05";
+
 #[derive(clap::Subcommand)]
 pub enum Bench {
     /// Env steps/s: Rust env vs the Python reference vs raw MuJoCo (no rendering).
+    ///
+    /// Per suite (task 0), the env steps per second of the Rust env in both step modes, of raw
+    /// MuJoCo replaying the same controls (the limit) and of the Python reference env (the
+    /// reference venv's --python), the median of --repeats interleaved measurements, printed.
+    #[command(after_help = SIM_EXAMPLES)]
     Sim(SimArgs),
-    /// Camera frames/s (agentview + eye-in-hand): Rust renderer vs the Python reference's.
+    /// Camera frames/s (agentview + eye-in-hand): this renderer vs the Python reference.
+    ///
+    /// Per suite (task 0), camera pairs rendered per second from one state, by this renderer and
+    /// by the Python reference's; with --threads, several threads rendering at once as a run's
+    /// workers do. Printed.
+    #[command(after_help = RENDER_EXAMPLES)]
     Render(RenderArgs),
-    /// A stored run's figures: episodes/s and peak RSS of its invocations, files per table, and
-    /// the wall time of re-scoring it (results under each definition, report).
+    /// A stored run's figures: episodes/s, peak RSS, files per table, re-scoring time.
+    ///
+    /// The episodes/s and peak RSS of each invocation that ran episodes, the files per table,
+    /// and the wall time of re-scoring it (results under each definition, report). Reads the
+    /// run's sessions/*.json and step timings (where a policy step's time goes, the projected
+    /// wall time of the canonical protocol), then times `pipeline results` and `pipeline report`
+    /// on it, each a fresh process (median of --repeats). Printed.
+    #[command(after_help = crate::bench_run::EXAMPLES)]
     Run(crate::bench_run::RunArgs),
-    /// What each perturbation (camera, robot init, sensor noise per kind) adds to an episode's
-    /// wall time (reset + render + env step per policy step).
+    /// What each perturbation adds to an episode's wall time (reset + render + step).
+    ///
+    /// One task and the same actions, unperturbed and then under each hook (camera viewpoint,
+    /// robot init pose, sensor noise of each kind) and LIBERO-PRO robustness case, without the
+    /// policy's own time; the median and minimum overhead over --repeats are printed.
+    /// --camera-category times every view of LIBERO-Plus's Camera variants instead.
+    #[command(after_help = crate::bench_perturbation::EXAMPLES)]
     Perturbation(crate::bench_perturbation::PerturbationArgs),
 }
+
+const SIM_EXAMPLES: &str = "\
+Examples:
+  pipeline bench sim                                  # needs the reference venv (.venv)
+  pipeline bench sim --suites libero_goal --steps 1000 --python none";
+
+const RENDER_EXAMPLES: &str = "\
+Examples:
+  pipeline bench render --python none
+  pipeline bench render --threads 4 --frames 50 --python none";
 
 #[derive(clap::Args)]
 pub struct RenderArgs {

@@ -24,10 +24,18 @@ use libero_udfs::policy_cameras::PolicyCameras;
 use std::path::Path;
 use std::time::Instant;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline bench perturbation
+  pipeline bench perturbation --suite libero_goal --only noise --repeats 5
+  pipeline bench perturbation --camera-category --every 4 --steps 20";
+
 #[derive(clap::Args)]
 pub struct PerturbationArgs {
+    /// The suite of the task timed.
     #[arg(long, default_value = "libero_spatial")]
     suite: Suite,
+    /// The task timed (its id in --suite).
     #[arg(long, default_value_t = 0)]
     task: u32,
     /// Policy steps per episode (after the reset).

@@ -16,6 +16,11 @@ use libero_udfs::run_store::RunStore;
 use std::process::Command;
 use std::time::Instant;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline bench run --run runs/pi05
+  pipeline bench run --run runs/pi05 --no-rescoring   # the run's own figures only";
+
 #[derive(clap::Args)]
 pub struct RunArgs {
     /// The run to measure (folder or object-store URL).

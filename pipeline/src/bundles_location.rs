@@ -36,7 +36,9 @@ pub fn resolve_aloha(explicit: Option<&Path>) -> PathBuf {
     if here.join("provenance.json").is_file() {
         return here;
     }
-    let built_in = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(libero_sim::aloha::bundle::DEFAULT_DIR);
+    // pipeline/.. without a literal `..` (named in the error when the bundle is missing)
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap_or(Path::new(".."));
+    let built_in = root.join(libero_sim::aloha::bundle::DEFAULT_DIR);
     built_in.canonicalize().unwrap_or(built_in)
 }
 

@@ -5,6 +5,11 @@ use anyhow::Result;
 use libero_udfs::compaction;
 use libero_udfs::run_store::RunStore;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline compact runs/pi05
+  pipeline compact s3://bucket/runs/pi05";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// The run (folder or object-store URL); finished or partly finished, not being written.

@@ -22,6 +22,11 @@ use datafusion::prelude::SessionContext;
 use std::path::PathBuf;
 use std::sync::Arc;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline compare runs/pi05 runs/pi05-int8         # B - A on the episodes both ran
+  pipeline compare runs/a runs/b --success last-step --cap 200";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Run A, the reference (folder or object-store URL).
@@ -31,7 +36,7 @@ pub struct Args {
     /// Applied to both runs' stored steps alike.
     #[command(flatten)]
     scoring: Scoring,
-    /// Folder for compare.csv and compare_by_task.csv.
+    /// Folder for compare.csv, compare_by_task.csv and compare_first_actions.csv.
     #[arg(long, default_value = "outputs")]
     out: PathBuf,
 }

@@ -7,6 +7,11 @@ use crate::session::{self, RunScoring};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline failures --run runs/pi05
+  pipeline failures --run runs/pi05 --success last-step --out outputs/last-step";
+
 #[derive(clap::Args)]
 pub struct Args {
     #[command(flatten)]

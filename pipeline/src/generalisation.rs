@@ -16,6 +16,12 @@ use anyhow::{Result, bail};
 use arrow::array::RecordBatch;
 use std::path::PathBuf;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline specs --benchmark libero-plus --suites libero_spatial --per-category 20 -o plus.parquet
+  pipeline run plus.parquet --out runs/plus --policy openpi:ws://localhost:8000
+  pipeline generalisation --run runs/plus";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// The run (folder or object-store URL) of a LIBERO-Plus spec table.

@@ -19,6 +19,11 @@ use html::Page;
 use libero_schema::RunManifest;
 use std::path::{Path, PathBuf};
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline report --run runs/pi05                             # outputs/report.html
+  pipeline report --run runs/pi05 --run runs/random --videos  # beside a baseline, with videos";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// The run(s); the first is the subject of the report, the others are shown beside it.

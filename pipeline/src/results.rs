@@ -12,6 +12,12 @@ use std::path::{Path, PathBuf};
 /// A baseline scoring above this is a broken success check or protocol, not a result.
 pub const BASELINE_MAX_SUCCESS: f64 = 0.05;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline results --run runs/expert
+  pipeline results --run runs/pi05 --run runs/random                # a policy beside a baseline
+  pipeline results --run runs/pi05 --success last-step --cap 200    # re-scored, nothing re-run";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// The run (folder or object-store URL). Repeat it to put several runs side by side (e.g. a

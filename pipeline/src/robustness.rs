@@ -12,6 +12,12 @@ use anyhow::{Result, bail};
 use arrow::array::RecordBatch;
 use std::path::PathBuf;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline specs --suites libero_goal,libero_goal_swap,libero_goal_object -o pro.parquet
+  pipeline run pro.parquet --out runs/pro --policy openpi:ws://localhost:8000
+  pipeline robustness --run runs/pro";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// The run (folder or object-store URL), holding base suites and their LIBERO-PRO copies.

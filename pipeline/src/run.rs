@@ -27,6 +27,12 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline run specs.parquet --out runs/expert --policy expert     # the positive control
+  pipeline run specs.parquet --out runs/pi05 --policy openpi:ws://localhost:8000 --jobs 8
+  pipeline run specs.parquet --out runs/ckpt --policy 'openvla:/path/to/ckpt?unnorm=libero_goal'";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Spec table (Parquet) with suite, task_id, init_state_id, seed; make one with `pipeline specs`.
@@ -38,17 +44,22 @@ pub struct Args {
     ///   random | lift: baselines (score ≈ 0)
     ///   expert: the privileged scripted expert (positive control)
     ///   nan-at:<policy step> | expert-drop: diagnostics
-    ///   torchscript:<model.pt>[?batch=N[&wait_ms=W]]: a TorchScript module, model.json beside it
+    ///   torchscript:<model.pt>[?batch=N[&wait_ms=W]]: a TorchScript module, model.json
+    ///     beside it
     ///   openvla:<checkpoint dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]: OpenVLA in process
-    ///   oft:<checkpoint dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]: OpenVLA-OFT in process (two
-    ///     cameras + state, 8-action chunks run open loop; the dir holds action_head--*.pt etc.)
-    ///   openpi:ws://host:port[?replan=N]: openpi's policy server (replan: actions run per chunk, 5)
-    ///   vla-eval:ws://host:port: vla-eval's model server (its HELLO says which images and state)
-    ///   starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1]:
-    ///     starVLA's policy server (VLA-JEPA): the metadata tells the generation; HEAD's servers
-    ///     unnormalise, the older one's normalised actions need stats= (unnorm: the dataset key;
-    ///     chunk: actions run per query, default the metadata's action_chunk_size, or 7; state: send
-    ///     the 8-D state, default off for HEAD, on for the older one)
+    ///   oft:<checkpoint dir>[?unnorm=<key>][&batch=N[&wait_ms=W]]: OpenVLA-OFT in process
+    ///     (two cameras + state, 8-action chunks run open loop; the dir holds
+    ///     action_head--*.pt etc.)
+    ///   openpi:ws://host:port[?replan=N]: openpi's policy server (replan: actions run per
+    ///     chunk, 5)
+    ///   vla-eval:ws://host:port: vla-eval's model server (its HELLO says which images and
+    ///     state)
+    ///   starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N]
+    ///     [&state=0|1]: starVLA's policy server (VLA-JEPA): the metadata tells the
+    ///     generation; HEAD's servers unnormalise, the older one's normalised actions need
+    ///     stats= (unnorm: the dataset key; chunk: actions run per query, default the
+    ///     metadata's action_chunk_size, or 7; state: send the 8-D state, default off for
+    ///     HEAD, on for the older one)
     #[arg(long, verbatim_doc_comment)]
     policy: PolicySpec,
     /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400;

@@ -7,6 +7,11 @@ use crate::session;
 use anyhow::{Context, Result};
 use datafusion::prelude::SessionContext;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline sample-size --p0 0.8 --delta 0.1             # detect 80% -> 90%
+  pipeline sample-size --p0 0.95 --delta -0.05 --power 0.9";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Success rate of the reference policy.

@@ -13,11 +13,17 @@ use libero_sim::gl::GlContext;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline smoke                                        # outputs/smoke/<suite>.png
+  pipeline smoke --suites libero_goal_swap --task 3 --init-state 1 --out outputs/look";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Output folder.
     #[arg(long, default_value = "outputs/smoke")]
     out: PathBuf,
+    /// Suites to picture, one PNG each.
     #[arg(long, value_delimiter = ',', default_value = "libero_spatial,libero_object,libero_goal,libero_10")]
     suites: Vec<Suite>,
     /// Task within each suite.

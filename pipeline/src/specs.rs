@@ -26,6 +26,13 @@ use std::sync::Arc;
 /// A comma-separated suite list (an alias, so clap takes it as one value, parsed whole).
 type SuiteList = Vec<Suite>;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  # the canonical protocol: 4 suites x 10 tasks x 50 init states, seed 7 (2,000 episodes)
+  pipeline specs -o specs.parquet
+  pipeline specs --suites libero_goal --tasks 0,1 --trials 5 -o small.parquet
+  pipeline specs --benchmark aloha_sim -o aloha.parquet   # lerobot's: 2 tasks x 50 seeds from 1000";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Suites to include: LIBERO's (libero_spatial, libero_object, libero_goal, libero_10,

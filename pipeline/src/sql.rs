@@ -11,6 +11,12 @@
 use crate::session::Scoring;
 use anyhow::Result;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline sql \"SELECT suite, wilson(scored_success) FROM scored GROUP BY suite\" --run runs/pi05
+  pipeline sql \"SELECT suite, task_id, n_policy_steps FROM episodes\" --run runs/pi05 --csv
+  pipeline sql \"SELECT wilson_lo(45, 50), wilson_hi(45, 50)\"          # no run: functions only";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// The SQL query, e.g. "SELECT suite, wilson(success) FROM episodes GROUP BY suite".

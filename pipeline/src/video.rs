@@ -33,6 +33,11 @@ use std::path::{Path, PathBuf};
 use std::rc::Rc;
 use std::sync::Arc;
 
+pub const VIDEO_EXAMPLES: &str = "\
+Examples:
+  pipeline video --run runs/pi05 --episode libero_goal/3/12/7      # suite/task/init state/seed
+  pipeline video --run runs/aloha-expert --episode aloha_sim/0/0/1000 --out outputs/aloha";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// The run (folder or object-store URL).
@@ -52,6 +57,11 @@ pub struct Args {
     #[command(flatten)]
     render: RenderArgs,
 }
+
+pub const VIDEOS_EXAMPLES: &str = "\
+Examples:
+  pipeline videos --run runs/pi05 --dry-run       # print the selection only
+  pipeline videos --run runs/pi05                 # outputs/failures/*.mp4 and selection.csv";
 
 /// `pipeline videos`: render what the selection query picks.
 #[derive(clap::Args)]
@@ -100,6 +110,8 @@ struct StoredEpisode {
 }
 
 /// A stored episode's steps as its benchmark's replay needs them.
+// one value per replayed episode, beside its steps' vectors: the variants' sizes do not matter
+#[allow(clippy::large_enum_variant)]
 enum StoredSteps {
     Libero {
         /// What the episode's spec row perturbed (`episodes.perturbation_params`), re-applied.

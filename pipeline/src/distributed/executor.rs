@@ -18,6 +18,11 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline executor --scheduler 127.0.0.1:50050              # beside a scheduler on this machine
+  pipeline executor --scheduler SCHED:50050 --bind 0.0.0.0 --external-host $(hostname) --vcores 16";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// The scheduler, HOST:PORT (`pipeline scheduler`).

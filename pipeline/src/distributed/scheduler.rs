@@ -8,6 +8,12 @@ use ballista_scheduler::config::SchedulerConfig;
 use std::net::{SocketAddr, ToSocketAddrs};
 use std::sync::Arc;
 
+pub const EXAMPLES: &str = "\
+Examples:
+  pipeline scheduler --bind 0.0.0.0 --port 50050                # on one machine, SCHED
+  pipeline executor --scheduler SCHED:50050 --bind 0.0.0.0 --external-host $(hostname)
+  pipeline run specs.parquet --out s3://bucket/run --policy expert --engine ballista://SCHED:50050";
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Address to listen on (0.0.0.0 to accept executors and clients from other machines).

@@ -106,8 +106,9 @@ mod tests {
         if std::env::var_os("LIBERO_UPDATE_DOCS").is_some() {
             std::fs::write(&page, &rendered).unwrap();
         }
-        let committed = std::fs::read_to_string(&page)
-            .unwrap_or_else(|e| panic!("{}: {e}; write it with LIBERO_UPDATE_DOCS=1 cargo test -p libero-schema", page.display()));
+        let committed = std::fs::read_to_string(&page).unwrap_or_else(|e| {
+            panic!("{}: {e}; write it with LIBERO_UPDATE_DOCS=1 cargo test -p libero-schema", page.display())
+        });
         assert!(
             committed == rendered,
             "{} differs from the schemas in schema/src/tables.rs: regenerate it with \

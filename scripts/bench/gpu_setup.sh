@@ -24,7 +24,9 @@ mkdir -p "$work/bundles"; xz -dc "$carry/bundles.tar.xz" | tar -xf - -C "$work/b
 torch_lib=$(python3 -c 'import os, torch; print(os.path.join(os.path.dirname(torch.__file__), "lib"))')
 nv_libs=$(python3 -c 'import glob, os, torch; r = os.path.dirname(os.path.dirname(torch.__file__)); print(":".join(sorted(glob.glob(os.path.join(r, "nvidia", "*", "lib")) + glob.glob(os.path.join(r, "nvidia", "cu*", "lib")))))')
 export LD_LIBRARY_PATH="$torch_lib:$nv_libs:$carry/lib:${LD_LIBRARY_PATH:-}"
-export LD_PRELOAD="$torch_lib/libtorch_cuda.so"
+# libtorch's CUDA backend: the binary loads it at start from here (no LD_PRELOAD); the folders on
+# LD_LIBRARY_PATH serve the CPU libraries and NVRTC for our kernels
+export LIBERO_TORCH_CUDA_LIB="$torch_lib"
 P="$work/pipeline"
 "$P" --version
 

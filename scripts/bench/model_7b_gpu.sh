@@ -37,7 +37,7 @@ nv_libs=$(python3 -c 'import glob, os, torch; r = os.path.dirname(os.path.dirnam
 xz -dc "$bench" > "$work/bench"; chmod +x "$work/bench"
 for a in $attentions; do
   att=(); [ "$a" = model ] || att=(--attention "$a")
-  LD_LIBRARY_PATH="$torch_lib:$nv_libs:${LD_LIBRARY_PATH:-}" LD_PRELOAD="$torch_lib/libtorch_cuda.so" \
+  LD_LIBRARY_PATH="$torch_lib:$nv_libs:${LD_LIBRARY_PATH:-}" LIBERO_TORCH_CUDA_LIB="$torch_lib" \
     "$work/bench" --checkpoint "$ckpt" "${flag[@]}" "${att[@]}" --device cuda --batch "$batches" --warmup 5 \
     --iters 20 --json "$out/rust-$a.json" 2>&1 | tee -a "$out/bench.log"
 done

@@ -302,14 +302,19 @@ pub fn driver_devices() -> Result<(Vec<GpuInfo>, i32), String> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn temp_dir(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("libero-cuda-backend-{}-{name}", std::process::id()));
+    /// An empty folder of this process's for one test (`group`: the module, `name`: the case).
+    pub(crate) fn temp_dir_of(group: &str, name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("libero-{group}-{}-{name}", std::process::id()));
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(&d).unwrap();
         d
+    }
+
+    fn temp_dir(name: &str) -> PathBuf {
+        temp_dir_of("cuda-backend", name)
     }
 
     #[test]

@@ -509,11 +509,10 @@ fn batched<M: crate::batching::BatchModel>(
 fn placement_identity(
     identity: &mut serde_json::Value,
     o: &CheckpointOptions,
-    policy: &str,
+    policy: &'static str,
 ) -> Result<(), PolicyError> {
     let (mut devices, mut on_gpu) = (Vec::new(), Vec::new());
-    let size =
-        crate::models::cpu_fallback::ModelSize::of_checkpoint(if policy == "oft" { "oft" } else { "openvla" }, &o.dir);
+    let size = crate::models::cpu_fallback::ModelSize::of_checkpoint(policy, &o.dir);
     for d in o.replica_devices() {
         let (device, kind) = crate::models::device_and_dtype(d, &size)
             .map_err(|detail| PolicyError { policy: policy.into(), detail })?;

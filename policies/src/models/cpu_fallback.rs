@@ -214,10 +214,7 @@ mod tests {
     use crate::cuda_backend::{Candidate, Source};
 
     fn temp_dir(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("libero-cpu-fallback-{}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&d);
-        std::fs::create_dir_all(&d).unwrap();
-        d
+        crate::cuda_backend::tests::temp_dir_of("cpu-fallback", name)
     }
 
     /// A safetensors file of the given tensor shapes (f32, zero bytes).

@@ -17,7 +17,7 @@ fn s3_python() -> PathBuf {
     let py = venv.join("bin/python");
     assert!(
         py.exists(),
-        "no S3 server venv at {}: run ./setup.sh, or `bash scripts/setup/s3_server_venv.sh DIR` and set LIBERO_S3_VENV=DIR",
+        "no S3 server venv at {}: run ./setup.sh --tests, or `bash scripts/setup/s3_server_venv.sh DIR` and set LIBERO_S3_VENV=DIR",
         venv.display()
     );
     py

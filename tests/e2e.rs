@@ -33,6 +33,7 @@ mod readme;
 mod remote_policy;
 mod render;
 mod report;
+mod setup_script;
 mod starvla_policy;
 mod torchscript;
 mod vla_eval_policy;

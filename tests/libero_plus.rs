@@ -15,7 +15,7 @@ use std::sync::Arc;
 
 fn plus_golden() -> PathBuf {
     let d = repo_root().join("data/plus_golden");
-    assert!(d.join(".complete").exists(), "no LIBERO-Plus reference episodes at {}: run ./setup.sh", d.display());
+    assert!(d.join(".complete").exists(), "no LIBERO-Plus reference episodes at {}: run ./setup.sh --tests", d.display());
     d
 }
 

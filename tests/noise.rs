@@ -41,7 +41,7 @@ fn write_png(path: &Path, rgb: &[u8], size: usize) {
 
 fn oracle_python() -> PathBuf {
     let p = repo_root().join(".noise-venv/bin/python");
-    assert!(p.exists(), "no sensor-noise oracle venv at {}: run ./setup.sh (scripts/setup/noise_venv.sh)", p.display());
+    assert!(p.exists(), "no sensor-noise oracle venv at {}: run ./setup.sh --tests (scripts/setup/noise_venv.sh)", p.display());
     p
 }
 

@@ -15,7 +15,7 @@ fn jupytext() -> PathBuf {
     let p = repo_root().join(".nb-venv/bin/jupytext");
     assert!(
         p.exists(),
-        "no notebook venv at {}: run ./setup.sh (or `bash scripts/setup/notebook_venv.sh DIR && ln -sfn DIR .nb-venv`)",
+        "no notebook venv at {}: run ./setup.sh --tests (or `bash scripts/setup/notebook_venv.sh DIR && ln -sfn DIR .nb-venv`)",
         p.display()
     );
     p

@@ -13,7 +13,7 @@ pub(crate) fn tiny_checkpoint(dir: &std::path::Path) -> PathBuf {
     let venv =
         std::env::var_os("LIBERO_OPENVLA_VENV").map(PathBuf::from).unwrap_or_else(|| repo_root().join(".openvla-venv"));
     let py = venv.join("bin/python");
-    assert!(py.exists(), "no OpenVLA reference venv at {}: run ./setup.sh", venv.display());
+    assert!(py.exists(), "no OpenVLA reference venv at {}: run ./setup.sh --tests", venv.display());
     let ckpt = dir.join("openvla-tiny");
     let out = Command::new(py).arg(repo_root().join("scripts/reference/openvla_tiny.py")).arg(&ckpt).output().unwrap();
     assert!(out.status.success(), "openvla_tiny.py: {}", String::from_utf8_lossy(&out.stderr));

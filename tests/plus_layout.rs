@@ -27,7 +27,7 @@ fn layout_golden() -> PathBuf {
     let d = repo_root().join("data/plus_layout_golden");
     assert!(
         d.join(".complete").exists(),
-        "no LIBERO-Plus layout reference episodes at {}: run ./setup.sh (it builds the tests' sample of layout bundles)",
+        "no LIBERO-Plus layout reference episodes at {}: run ./setup.sh --tests (it builds the tests' sample of layout bundles)",
         d.display()
     );
     d
@@ -59,7 +59,7 @@ fn layout_bundles_are_moved_scenes_that_compile_to_the_reference_model() {
     let layout: Vec<_> = set.tasks().iter().filter(|t| t.suite.ends_with("_plus_layout")).collect();
     for base in BaseSuite::CANONICAL {
         let n = layout.iter().filter(|t| t.suite == Suite::plus_layout(base).name()).count();
-        assert!(n >= TEST_PER_SUITE, "{} has {n} layout bundles: run ./setup.sh", Suite::plus_layout(base));
+        assert!(n >= TEST_PER_SUITE, "{} has {n} layout bundles: run ./setup.sh --tests", Suite::plus_layout(base));
     }
     let mut levels = std::collections::BTreeSet::new();
     for t in &layout {

@@ -17,7 +17,7 @@ const TEST_TASKS: [(&str, u32); 2] = [("libero_goal", 8), ("libero_10", 5)];
 
 fn golden() -> PathBuf {
     let d = repo_root().join("data/pro_occlusion_golden");
-    assert!(d.join(".complete").exists(), "no view_occlusion reference episodes at {}: run ./setup.sh", d.display());
+    assert!(d.join(".complete").exists(), "no view_occlusion reference episodes at {}: run ./setup.sh --tests", d.display());
     d
 }
 

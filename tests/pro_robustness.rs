@@ -17,7 +17,7 @@ fn golden() -> PathBuf {
     let d = repo_root().join("data/pro_robustness_golden");
     assert!(
         d.join(".complete").exists(),
-        "no LIBERO-PRO robustness reference episodes at {}: run ./setup.sh",
+        "no LIBERO-PRO robustness reference episodes at {}: run ./setup.sh --tests",
         d.display()
     );
     d

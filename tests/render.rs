@@ -27,7 +27,7 @@ struct ReferenceFrame {
 
 fn reference_frames(stack: &str) -> Vec<ReferenceFrame> {
     let dir = repo_root().join("data/frames").join(stack);
-    assert!(dir.exists(), "no reference frames at {}: run ./setup.sh first", dir.display());
+    assert!(dir.exists(), "no reference frames at {}: run ./setup.sh --tests", dir.display());
     let mut out: Vec<ReferenceFrame> = std::fs::read_dir(&dir)
         .unwrap()
         .filter_map(|e| {

@@ -13,7 +13,7 @@ const CHROMIUM: &str = "/usr/bin/chromium";
 fn chromium() -> &'static str {
     assert!(
         Path::new(CHROMIUM).exists(),
-        "no Chromium at {CHROMIUM}: run ./setup.sh (as root it installs the Debian package chromium)"
+        "no Chromium at {CHROMIUM}: run ./setup.sh --tests (as root it installs the Debian package chromium)"
     );
     CHROMIUM
 }

@@ -20,7 +20,7 @@ fn python() -> PathBuf {
     let venv =
         std::env::var_os("LIBERO_REMOTE_VENV").map(PathBuf::from).unwrap_or_else(|| repo_root().join(".remote-venv"));
     let py = venv.join("bin/python");
-    assert!(py.exists(), "no remote-policy venv at {}: run ./setup.sh", venv.display());
+    assert!(py.exists(), "no remote-policy venv at {}: run ./setup.sh --tests", venv.display());
     py
 }
 

@@ -12,18 +12,18 @@ pub fn repo_root() -> PathBuf {
 }
 
 pub fn bundles() -> BundleSet {
-    BundleSet::open(repo_root().join("data/bundles")).unwrap_or_else(|e| panic!("{e}\nrun ./setup.sh first"))
+    BundleSet::open(repo_root().join("data/bundles")).unwrap_or_else(|e| panic!("{e}\nrun ./setup.sh --tests"))
 }
 
 pub fn golden_dir() -> PathBuf {
     let d = repo_root().join("data/golden");
-    assert!(d.exists(), "no golden data at {}: run ./setup.sh first", d.display());
+    assert!(d.exists(), "no golden data at {}: run ./setup.sh --tests", d.display());
     d
 }
 
 pub fn reference_python() -> PathBuf {
     let p = repo_root().join(".venv/bin/python");
-    assert!(p.exists(), "no reference venv at {}: run ./setup.sh first", p.display());
+    assert!(p.exists(), "no reference venv at {}: run ./setup.sh --tests", p.display());
     p
 }
 
@@ -44,8 +44,16 @@ pub fn pipeline_bin() -> PathBuf {
 
 /// Read an RGB PNG as a frame in the given orientation (PNGs carry none).
 pub fn read_png(path: &Path, orientation: libero_sim::render::Orientation) -> libero_sim::render::Frame {
-    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
-    let mut reader = decoder.read_info().unwrap();
+    let file = std::fs::File::open(path).unwrap_or_else(|e| {
+        panic!(
+            "cannot open the reference frame {} ({e}): the tests' set-up renders them into data/frames; run ./test.sh \
+             (or ./setup.sh --tests)",
+            path.display()
+        )
+    });
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file))
+        .read_info()
+        .unwrap_or_else(|e| panic!("{} is not a readable PNG ({e}): rerun ./setup.sh --tests", path.display()));
     let mut buf = vec![0; reader.output_buffer_size().unwrap()];
     let info = reader.next_frame(&mut buf).unwrap();
     assert_eq!(info.color_type, png::ColorType::Rgb, "{}", path.display());

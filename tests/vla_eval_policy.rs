@@ -22,7 +22,7 @@ fn python() -> PathBuf {
         .map(PathBuf::from)
         .unwrap_or_else(|| repo_root().join(".vla-eval-venv"));
     let py = venv.join("bin/python");
-    assert!(py.exists(), "no vla-eval venv at {}: run ./setup.sh", venv.display());
+    assert!(py.exists(), "no vla-eval venv at {}: run ./setup.sh --tests", venv.display());
     py
 }
 

@@ -354,7 +354,7 @@ fn aloha_bundle() -> Check {
             "ALOHA-sim bundle",
             Status::Warn,
             format!("none at {} (only ALOHA-sim runs need it)", dir.display()),
-            Some(setup()),
+            Some("./setup.sh --suites aloha_sim".into()),
         ),
     }
 }

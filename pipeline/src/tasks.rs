@@ -65,7 +65,7 @@ pub fn run(bundles: impl FnOnce() -> Result<PathBuf>, args: Args) -> Result<()> 
             // listed beside LIBERO's: its absence is a note (one line), not a failure
             let note = match e {
                 libero_sim::SimError::BundleMissing { .. } => format!(
-                    "ALOHA-sim ({ALOHA_SUITE}): no bundle at {}; ./setup.sh builds it (or pass --aloha-bundle)",
+                    "ALOHA-sim ({ALOHA_SUITE}): no bundle at {}; ./setup.sh --suites aloha_sim builds it (or pass --aloha-bundle)",
                     aloha_dir.display()
                 ),
                 other => format!("ALOHA-sim ({ALOHA_SUITE}) not listed: {other}"),

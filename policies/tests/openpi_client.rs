@@ -3,7 +3,7 @@
 //! deterministic toy policy on the other side (its formula is `expected_chunk` below).
 //!
 //! Needs the venv of `scripts/setup/remote_policy_venv.sh`: `$LIBERO_REMOTE_VENV`, else
-//! `<repo>/.remote-venv` (made by ./setup.sh). Fails, never skips, when neither exists.
+//! `<repo>/.remote-venv` (made by ./setup.sh --tests). Fails, never skips, when neither exists.
 
 use libero_policies::remote::openpi::{LIBERO_REPLAN_STEPS, libero_request};
 use libero_policies::remote::{OpenpiConfig, OpenpiConnection, OpenpiImages, OpenpiPolicy, RgbImage};
@@ -22,7 +22,7 @@ fn python() -> PathBuf {
     let py = venv.join("bin/python");
     assert!(
         py.exists(),
-        "no remote-policy venv at {} ({} missing): run ./setup.sh, or `bash scripts/setup/remote_policy_venv.sh DIR` and set LIBERO_REMOTE_VENV=DIR",
+        "no remote-policy venv at {} ({} missing): run ./setup.sh --tests, or `bash scripts/setup/remote_policy_venv.sh DIR` and set LIBERO_REMOTE_VENV=DIR",
         venv.display(),
         py.display()
     );

@@ -18,7 +18,7 @@
 //! | quat2axisangle | robosuite `transform_utils.quat2axisangle` | 1e-15 relative (measured: bit-identical) |
 //! | un-normalisation + gripper | prismatic `predict_action` + `robot_utils` | 1e-12 |
 //!
-//! The test fails (never skips) without the reference venv: run ./setup.sh.
+//! The test fails (never skips) without the reference venv: run ./setup.sh --tests.
 
 use libero_policies::postprocess::{Gripper, NormStats, PostprocessError, postprocess_action};
 use libero_policies::preprocess::image::{self, Filter, RgbImage};
@@ -38,15 +38,15 @@ fn fixtures() -> &'static Path {
     DIR.get_or_init(|| {
         let root = repo_root();
         let python = root.join(".venv/bin/python");
-        assert!(python.exists(), "no reference venv at {}: run ./setup.sh first", python.display());
+        assert!(python.exists(), "no reference venv at {}: run ./setup.sh --tests", python.display());
         let frames = root.join("data/frames/mujoco-3.3.7");
         let picks = ["libero_10__00__init0__s040__agentview.png", "libero_10__00__init0__s040__robot0_eye_in_hand.png"];
         for p in picks {
-            assert!(frames.join(p).exists(), "no reference frame {p} in {}: run ./setup.sh first", frames.display());
+            assert!(frames.join(p).exists(), "no reference frame {p} in {}: run ./setup.sh --tests", frames.display());
         }
         // an ALOHA-sim `top` frame (upright 480x640) of the ALOHA bundle's golden episodes
         let top = root.join("data/aloha/golden/transfer_cube_seed1000/top_s050.npy");
-        assert!(top.exists(), "no ALOHA-sim golden frame {}: run ./setup.sh first", top.display());
+        assert!(top.exists(), "no ALOHA-sim golden frame {}: run ./setup.sh --tests", top.display());
         let out = std::env::temp_dir().join(format!("libero-preprocess-parity-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&out);
         let run = Command::new(python)

@@ -36,7 +36,7 @@ struct Episode {
 
 fn episodes(bundle: &AlohaBundle) -> Vec<Episode> {
     let path = bundle.golden_dir().join("manifest.json");
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}; run ./setup.sh", path.display()));
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}; run ./setup.sh --tests", path.display()));
     let manifest: serde_json::Value = serde_json::from_str(&text).unwrap();
     let out: Vec<Episode> = manifest["episodes"]
         .as_array()

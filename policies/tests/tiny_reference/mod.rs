@@ -18,7 +18,7 @@ pub fn python() -> PathBuf {
     let py = venv.join("bin/python");
     assert!(
         py.exists(),
-        "no OpenVLA reference venv at {} ({} missing): run ./setup.sh, or `bash scripts/setup/openvla_ref_venv.sh DIR` \
+        "no OpenVLA reference venv at {} ({} missing): run ./setup.sh --tests, or `bash scripts/setup/openvla_ref_venv.sh DIR` \
          and set LIBERO_OPENVLA_VENV=DIR",
         venv.display(),
         py.display()

@@ -55,7 +55,7 @@ impl AlohaBundle {
         if !provenance_path.exists() {
             return Err(SimError::BundleMissing {
                 path: dir,
-                hint: "no provenance.json; ./setup.sh builds the ALOHA-sim bundle (scripts/reference/aloha_bundle.py) \
+                hint: "no provenance.json; ./setup.sh --suites aloha_sim builds the ALOHA-sim bundle (scripts/reference/aloha_bundle.py) \
                        and links it as data/aloha"
                     .into(),
             });
@@ -74,7 +74,7 @@ impl AlohaBundle {
             SimError::BundleCorrupt { path, detail } => SimError::BundleDamaged {
                 path,
                 detail,
-                rebuild: format!("rm {}/.complete && ./setup.sh", dir.display()),
+                rebuild: format!("rm {}/.complete && ./setup.sh --suites aloha_sim", dir.display()),
             },
             other => other,
         };

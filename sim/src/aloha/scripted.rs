@@ -66,7 +66,7 @@ impl ScriptRecorder {
             return Err(SimError::BundleMissing {
                 path: path.clone(),
                 hint: "this ALOHA-sim bundle predates the end-effector scenes of the scripted control; \
-                       ./setup.sh rebuilds it"
+                       ./setup.sh --suites aloha_sim rebuilds it"
                     .into(),
             });
         }

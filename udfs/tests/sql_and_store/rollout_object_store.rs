@@ -19,7 +19,7 @@ use std::sync::Arc;
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn episodes_written_to_an_object_store_url_are_listed_and_queryable() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/bundles");
-    let bundles = Arc::new(BundleSet::open(&root).unwrap_or_else(|e| panic!("{e}\nrun ./setup.sh first")));
+    let bundles = Arc::new(BundleSet::open(&root).unwrap_or_else(|e| panic!("{e}\nrun ./setup.sh --tests")));
     let store = RunStore::open("memory:///run-under-test/").unwrap();
     assert_eq!(store.base_url().scheme(), "memory");
     let max_steps = BTreeMap::from([(Suite::LIBERO_OBJECT, 5)]);

@@ -363,6 +363,9 @@ if [ "$TESTS" = 1 ]; then
   step "OpenVLA reference venv (torch 2.11.0, transformers 4.40.1, timm 0.9.16: the tiny model of the OpenVLA parity test)"
   linked_venv openvla_ref_venv.sh openvla-venv .openvla-venv
 
+  step "lerobot venv (lerobot 0.6.1, torch 2.11.0, Python >= 3.12: the Python-policy tests' tiny lerobot checkpoints)"
+  linked_venv lerobot_venv.sh lerobot-venv .lerobot-venv
+
   step "S3 server venv (moto's S3 server, boto3: the s3:// run location test)"
   linked_venv s3_server_venv.sh s3-venv .s3-venv
 

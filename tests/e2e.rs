@@ -29,6 +29,7 @@ mod plus_layout;
 mod pro;
 mod pro_occlusion;
 mod pro_robustness;
+mod python_policy;
 mod readme;
 mod remote_policy;
 mod render;

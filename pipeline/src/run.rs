@@ -60,6 +60,11 @@ pub struct Args {
     ///     stats= (unnorm: the dataset key; chunk: actions run per query, default the
     ///     metadata's action_chunk_size, or 7; state: send the 8-D state, default off for
     ///     HEAD, on for the older one)
+    ///   lerobot:<checkpoint dir>[?python=<interpreter>][&batch=N][&devices=D,..][&steps=N]:
+    ///     a lerobot 0.6.1 checkpoint (SmolVLA, π0, π0.5, ...) in a Python process the run
+    ///     starts, fed as lerobot-eval feeds it (interpreter: python= or LIBERO_EVAL_PYTHON)
+    ///   python:<module>:<factory>[?python=<interpreter>][&key=value..]: any Python policy
+    ///     object with describe() and act(batch), in that process (see docs: Policies)
     #[arg(long, verbatim_doc_comment)]
     policy: PolicySpec,
     /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400;

@@ -45,6 +45,9 @@ use std::time::{Duration, Instant};
 /// One worker's query, as the model receives it.
 pub struct Request {
     pub instruction: String,
+    /// The episode's seed ([`Policy::reset`]): a model that samples (flow-matching noise) draws
+    /// from it, so an episode's actions do not depend on the episodes sharing its forward.
+    pub episode_seed: u64,
     pub obs: Observation,
     /// What the model's [`BatchModel::preparer`] made of `obs` on the asking worker's thread.
     pub prepared: Option<Box<dyn Any + Send>>,
@@ -345,11 +348,11 @@ impl Batcher {
     }
 
     /// Prepare the query here (the worker's thread), send it, wait for its forward's answer.
-    fn ask(&self, instruction: &str, obs: &Observation) -> Result<(Vec<Action>, ActTiming), String> {
+    fn ask(&self, instruction: &str, episode_seed: u64, obs: &Observation) -> Result<(Vec<Action>, ActTiming), String> {
         let t0 = Instant::now();
         let prepared = self.preparer.as_ref().map(|prepare| prepare(obs)).transpose()?;
         let prepare_ms = self.preparer.as_ref().map(|_| t0.elapsed().as_secs_f32() * 1e3);
-        let request = Request { instruction: instruction.to_string(), obs: obs.clone(), prepared };
+        let request = Request { instruction: instruction.to_string(), episode_seed, obs: obs.clone(), prepared };
         let (tx, rx) = channel();
         self.queue
             .lock()
@@ -367,6 +370,7 @@ pub struct BatchedPolicy {
     replicas: Arc<Replicas>,
     chunker: ActionChunker,
     instruction: String,
+    episode_seed: u64,
     name: String,
     last_timing: Option<ActTiming>,
     /// The replica serving the episode in progress, counted in its episodes in progress.
@@ -390,6 +394,7 @@ impl BatchedPolicy {
             replicas,
             chunker: ActionChunker::new(replan_steps),
             instruction: String::new(),
+            episode_seed: 0,
             name: name.into(),
             last_timing: None,
             replica: None,
@@ -413,8 +418,9 @@ impl Drop for BatchedPolicy {
 }
 
 impl Policy for BatchedPolicy {
-    fn reset(&mut self, instruction: &str, _episode_seed: u64) {
+    fn reset(&mut self, instruction: &str, episode_seed: u64) {
         self.instruction = instruction.to_string();
+        self.episode_seed = episode_seed;
         self.chunker.reset();
         if self.replica.is_none() {
             self.replica = Some(self.replicas.start_episode());
@@ -439,7 +445,7 @@ impl Policy for BatchedPolicy {
         let err = |detail: String| PolicyError { policy: self.name.clone(), detail };
         self.last_timing = None;
         if self.chunker.needs_query() {
-            let (chunk, timing) = self.batcher().ask(&self.instruction, obs).map_err(err)?;
+            let (chunk, timing) = self.batcher().ask(&self.instruction, self.episode_seed, obs).map_err(err)?;
             self.last_timing = Some(timing);
             self.chunker.push_chunk(chunk).map_err(err)?;
         }

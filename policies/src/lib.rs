@@ -14,6 +14,7 @@
 //! | libtorch's CUDA backend loaded at start; no silent CPU fallback of a model | `cuda_backend`, `models::cpu_fallback` (feature `torch`) |
 //! | in-process model ports on libtorch: TorchScript, OpenVLA, OpenVLA-OFT | `models` (feature `torch`) |
 //! | clients of policy servers: openpi, vla-eval, starVLA | [`remote`] |
+//! | Python policies (lerobot checkpoints, any `python:` object) in a host process it starts | [`python_host`] |
 //! | policies without a model: baselines, the privileged scripted [`Expert`] | `baselines.rs`, `expert/`, [`scene`] |
 //! | ALOHA-sim's seam (14-D joint actions) and its policies: [`aloha::AlohaPolicy`] | [`aloha`] |
 //!
@@ -46,6 +47,7 @@ pub mod models;
 pub mod placement;
 pub mod postprocess;
 pub mod preprocess;
+pub mod python_host;
 pub mod remote;
 pub mod scene;
 mod spec;
@@ -53,7 +55,7 @@ mod spec;
 pub use baselines::{LiftPolicy, NanAtPolicy, RandomPolicy};
 pub use expert::{Expert, ExpertDrop};
 pub use scene::SceneView;
-pub use spec::{Batching, CheckpointOptions, PolicySpec};
+pub use spec::{Batching, CheckpointOptions, PolicySpec, PythonOptions};
 
 /// What a policy sees at one step (the env's observation, without MuJoCo types).
 #[derive(Debug, Clone, Default)]
@@ -67,6 +69,11 @@ pub struct Observation {
     /// the quaternion the published loops turn into the proprio state's axis-angle.
     pub hand_quat: [f64; 4],
     pub gripper_qpos: [f64; 2],
+    /// The finger joints' velocities (robosuite's `robot0_gripper_qvel`).
+    pub gripper_qvel: [f64; 2],
+    /// The grip site's rotation matrix, row-major (MuJoCo's `site_xmat`, robosuite's
+    /// controller `ee_ori_mat`): lerobot's LIBERO env passes it on.
+    pub eef_mat: [f64; 9],
     pub joint_pos: [f64; 7],
     pub joint_vel: [f64; 7],
     /// Privileged simulator state, only for policies that ask for it ([`Policy::wants_scene`]).

@@ -48,6 +48,143 @@ pub enum PolicySpec {
     /// `starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1]`):
     /// the generation comes from the server's metadata.
     StarVla(StarVlaOptions),
+    /// A Python policy in a host process the pipeline starts (`lerobot:<checkpoint dir>` or
+    /// `python:<module>:<factory>`, options after `?`: see [`PythonOptions`]).
+    Python(PythonOptions),
+}
+
+/// The options of `lerobot:<dir>` and `python:<module>:<factory>`
+/// (`?python=<interpreter>&batch=N&wait_ms=W&devices=D,...&timeout_s=S&load_timeout_s=S`, and the
+/// policy's own: `steps=N`, `tokenizer=<dir>` for lerobot; any `key=value` for `python:`).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PythonOptions {
+    pub target: crate::python_host::PythonTarget,
+    pub interpreter: Option<std::path::PathBuf>,
+    /// The forwards' sharing; None: every episode in progress, up to [`PythonOptions::DEFAULT_BATCH`].
+    pub batch: Option<Batching>,
+    /// One host per device; empty: one host on its default device (CUDA where its torch sees one).
+    pub devices: Vec<ModelDevice>,
+    pub call_timeout_s: Option<u64>,
+    pub load_timeout_s: Option<u64>,
+    /// Passed to the policy (`--option key=value`), in the order given.
+    pub policy_options: Vec<(String, String)>,
+}
+
+impl PythonOptions {
+    /// A host answers every episode in progress in one call unless `batch` says otherwise.
+    pub const DEFAULT_BATCH: usize = 64;
+    /// What the host's own `lerobot:` adapter takes; `python:` passes any other key through.
+    const LEROBOT_OPTIONS: [&'static str; 2] = ["steps", "tokenizer"];
+    const HOST_OPTIONS: [&'static str; 7] =
+        ["python", "batch", "wait_ms", "devices", "timeout_s", "load_timeout_s", "benchmark"];
+
+    pub fn host_config(&self, benchmark: Benchmark) -> crate::python_host::PythonHostConfig {
+        use crate::python_host::PythonHostConfig as C;
+        C {
+            target: self.target.clone(),
+            interpreter: self.interpreter.clone(),
+            benchmark: benchmark.to_string(),
+            options: self.policy_options.clone(),
+            call_timeout: std::time::Duration::from_secs(self.call_timeout_s.unwrap_or(C::DEFAULT_CALL_TIMEOUT_S)),
+            load_timeout: std::time::Duration::from_secs(self.load_timeout_s.unwrap_or(C::DEFAULT_LOAD_TIMEOUT_S)),
+        }
+    }
+
+    pub fn batching(&self) -> Batching {
+        self.batch.unwrap_or(Batching { max_episodes: Self::DEFAULT_BATCH, wait_ms: Batching::DEFAULT_WAIT_MS })
+    }
+
+    fn replica_devices(&self) -> Vec<Option<ModelDevice>> {
+        match self.devices.is_empty() {
+            true => vec![None],
+            false => self.devices.iter().copied().map(Some).collect(),
+        }
+    }
+
+    fn options(&self) -> Vec<String> {
+        let mut o: Vec<String> = self.interpreter.iter().map(|p| format!("python={}", p.display())).collect();
+        o.extend(self.batch.iter().flat_map(Batching::options));
+        if !self.devices.is_empty() {
+            o.push(format!("devices={}", devices_text(&self.devices)));
+        }
+        o.extend(self.call_timeout_s.map(|s| format!("timeout_s={s}")));
+        o.extend(self.load_timeout_s.map(|s| format!("load_timeout_s={s}")));
+        o.extend(self.policy_options.iter().map(|(k, v)| format!("{k}={v}")));
+        o
+    }
+
+    fn parse(kind: &str, rest: &str) -> Result<PythonOptions, String> {
+        use crate::python_host::PythonTarget;
+        let (target, query) = rest.split_once('?').map_or((rest, None), |(t, q)| (t, Some(q)));
+        let target = match kind {
+            "lerobot" if !target.is_empty() => PythonTarget::Lerobot(target.into()),
+            "python" => match target.rsplit_once(':') {
+                Some((module, factory)) if !module.is_empty() && !factory.is_empty() => {
+                    PythonTarget::Module { module: module.into(), factory: factory.into() }
+                }
+                _ => return Err(format!("python:{rest}: expected python:<module>:<factory>[?key=value&...]")),
+            },
+            _ => return Err(format!("{kind}:{rest}: expected lerobot:<checkpoint dir>[?options]")),
+        };
+        let mut host = std::collections::BTreeMap::new();
+        let mut policy_options: Vec<(String, String)> = Vec::new();
+        let known = || {
+            let mut k: Vec<&str> = Self::HOST_OPTIONS[..6].to_vec();
+            if kind == "lerobot" {
+                k.extend(Self::LEROBOT_OPTIONS);
+            }
+            k.join(", ")
+        };
+        for option in query.into_iter().flat_map(|q| q.split('&')) {
+            let Some((name, value)) = option.split_once('=') else {
+                return Err(format!("{kind}:{rest}: option {option:?} is not key=value; the options are {}", known()));
+            };
+            let twice = || format!("{kind}:{rest}: {name} is given twice");
+            if name == "benchmark" {
+                return Err(format!("{kind}:{rest}: the benchmark comes from the specs, not from an option"));
+            } else if Self::HOST_OPTIONS.contains(&name) {
+                if host.insert(name, value).is_some() {
+                    return Err(twice());
+                }
+            } else if kind == "python" || Self::LEROBOT_OPTIONS.contains(&name) {
+                if policy_options.iter().any(|(k, _)| k == name) {
+                    return Err(twice());
+                }
+                policy_options.push((name.into(), value.into()));
+            } else {
+                return Err(format!("{kind}:{rest}: unknown option {option:?}; the options are {}", known()));
+            }
+        }
+        if let Some((_, steps)) = policy_options.iter().find(|(k, _)| k == "steps")
+            && kind == "lerobot"
+            && !matches!(steps.parse::<usize>(), Ok(n) if n >= 1)
+        {
+            return Err(format!("{kind}:{rest}: expected steps=N with N >= 1 (actions executed of each chunk)"));
+        }
+        let seconds = |name: &str| -> Result<Option<u64>, String> {
+            host.get(name)
+                .map(|v: &&str| match v.parse::<u64>() {
+                    Ok(s) if s >= 1 => Ok(s),
+                    _ => Err(format!("{kind}:{rest}: expected {name}=S with S >= 1 (seconds)")),
+                })
+                .transpose()
+        };
+        let devices = match host.get("devices") {
+            None => Vec::new(),
+            Some(d) => {
+                parse_devices(d).map_err(|e| format!("{kind}:{rest}: expected {} ({e})", option_help("devices")))?
+            }
+        };
+        Ok(PythonOptions {
+            target,
+            interpreter: host.get("python").filter(|p| !p.is_empty()).map(std::path::PathBuf::from),
+            batch: batching(kind, rest, &host)?,
+            devices,
+            call_timeout_s: seconds("timeout_s")?,
+            load_timeout_s: seconds("load_timeout_s")?,
+            policy_options,
+        })
+    }
 }
 
 /// The options of `starvla:...` (see [`StarVlaConfig`]).
@@ -165,6 +302,14 @@ impl PolicySpec {
         match self {
             #[cfg(feature = "torch")]
             PolicySpec::OpenVla(o) | PolicySpec::Oft(o) => o.cuda_devices(),
+            PolicySpec::Python(o) => o
+                .devices
+                .iter()
+                .filter_map(|d| match d {
+                    ModelDevice::Cuda(i) => Some(*i),
+                    ModelDevice::Cpu => None,
+                })
+                .collect(),
             _ => Vec::new(),
         }
     }
@@ -188,6 +333,14 @@ impl PolicySpec {
             })?),
             PolicySpec::VlaEval { url } => Box::new(VlaEvalPolicy::connect(VlaEvalConfig::new(url.clone()))?),
             PolicySpec::StarVla(o) => Box::new(StarVlaPolicy::connect(o.config())?),
+            PolicySpec::Python(o) => {
+                let config = o.host_config(Benchmark::Libero);
+                let kind = o.target.kind();
+                batched(&self.to_string(), o.batching(), &o.replica_devices(), kind, |d| {
+                    crate::python_host::PythonHostModel::start(&config, d)
+                        .map_err(|detail| PolicyError { policy: kind.into(), detail })
+                })?
+            }
         })
     }
 
@@ -255,6 +408,10 @@ impl PolicySpec {
                         file.display()
                     )),
                 },
+                PolicySpec::Python(o) => Err(format!(
+                    "{self}: {} policies run on LIBERO in this version; their ALOHA-sim form (lerobot's ACT on the top camera and agent_pos) is not there yet, so ALOHA-sim takes expert, random, nan-at:N, openpi:ws://... or a torchscript module made for aloha_sim",
+                    o.target.kind()
+                )),
                 _ => Err(format!(
                     "the policy {self} acts in LIBERO's 7-D end-effector space, and ALOHA-sim (suite aloha_sim) takes {}-D joint actions (per arm 6 joint targets and a gripper); on ALOHA-sim run expert (the scripted control), random, nan-at:N, openpi:ws://... or a torchscript module made for aloha_sim",
                     Benchmark::AlohaSim.action_dim()
@@ -279,6 +436,7 @@ impl PolicySpec {
                 | PolicySpec::Openpi { .. }
                 | PolicySpec::VlaEval { .. }
                 | PolicySpec::StarVla(_)
+                | PolicySpec::Python(_)
         )
     }
 
@@ -338,6 +496,18 @@ impl PolicySpec {
             .identity()),
             PolicySpec::VlaEval { url } => Ok(VlaEvalPolicy::connect(VlaEvalConfig::new(url.clone()))?.identity()),
             PolicySpec::StarVla(o) => Ok(StarVlaPolicy::connect(o.config())?.identity()),
+            PolicySpec::Python(o) => {
+                let config = o.host_config(Benchmark::Libero);
+                let mut identity = crate::python_host::resolve_identity(&config, o.replica_devices()[0])
+                    .map_err(|detail| PolicyError { policy: self.to_string(), detail })?;
+                identity["spec"] = serde_json::json!(self.to_string());
+                identity["batch"] = serde_json::json!({"max_episodes_per_forward": o.batching().max_episodes, "wait_ms": o.batching().wait_ms});
+                identity["replicas"] = serde_json::json!({
+                    "devices": o.replica_devices().iter().map(|d| d.map_or("default".to_string(), |d| d.to_string())).collect::<Vec<_>>(),
+                    "assignment": "one host process per device; each episode on the replica with the least (episodes in progress + 1) x recent call ms when it starts",
+                });
+                Ok(identity)
+            }
             #[cfg(feature = "torch")]
             PolicySpec::TorchScript { file, batch, device } => {
                 Ok(crate::models::torchscript::TorchScriptModel::load_on(file, *device)?
@@ -410,6 +580,10 @@ impl PolicySpec {
                 "stats": o.stats.as_ref().map(|p| p.display().to_string()), "chunk": o.chunk, "state": o.state,
                 "server_metadata": "read at run start (resolve_identity)",
             }),
+            PolicySpec::Python(o) => serde_json::json!({
+                "kind": o.target.kind(), "spec": self.to_string(),
+                "describe": "read from the host at run start (resolve_identity)",
+            }),
             PolicySpec::ExpertDrop => serde_json::json!({
                 "kind": "diagnostic", "name": "expert-drop", "privileged": true,
                 "forced": "the expert opens its gripper 5 steps into its first carry, then holds still",
@@ -456,6 +630,18 @@ impl fmt::Display for PolicySpec {
                     false => write!(f, "starvla:{}?{}", o.url, options.join("&")),
                 }
             }
+            PolicySpec::Python(o) => {
+                use crate::python_host::PythonTarget;
+                match &o.target {
+                    PythonTarget::Lerobot(dir) => write!(f, "lerobot:{}", dir.display())?,
+                    PythonTarget::Module { module, factory } => write!(f, "python:{module}:{factory}")?,
+                }
+                let options = o.options();
+                match options.is_empty() {
+                    true => Ok(()),
+                    false => write!(f, "?{}", options.join("&")),
+                }
+            }
         }
     }
 }
@@ -471,6 +657,12 @@ impl FromStr for PolicySpec {
             _ if s.starts_with("openpi:") => parse_openpi(&s["openpi:".len()..]),
             _ if s.starts_with("vla-eval:") => parse_vla_eval(&s["vla-eval:".len()..]),
             _ if s.starts_with("starvla:") => parse_starvla(&s["starvla:".len()..]),
+            _ if s.starts_with("lerobot:") => {
+                Ok(PolicySpec::Python(PythonOptions::parse("lerobot", &s["lerobot:".len()..])?))
+            }
+            _ if s.starts_with("python:") => {
+                Ok(PolicySpec::Python(PythonOptions::parse("python", &s["python:".len()..])?))
+            }
             _ if s.starts_with("openvla:") && s.len() > "openvla:".len() => parse_openvla(&s["openvla:".len()..]),
             _ if s.starts_with("oft:") && s.len() > "oft:".len() => parse_oft(&s["oft:".len()..]),
             _ if s.starts_with("torchscript:") && s.len() > "torchscript:".len() => {
@@ -479,7 +671,7 @@ impl FromStr for PolicySpec {
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => Err(format!(
-                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1], torchscript:<model.pt>[?batch=N][&devices=cpu|cuda:N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N][&devices=cpu|cuda:0,cuda:1][&quant=int8|int4], oft:<checkpoint dir>[?unnorm=<key>][&batch=N][&devices=...][&quant=int8|int4]; diagnostics: nan-at:<policy step>, expert-drop"
+                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1], torchscript:<model.pt>[?batch=N][&devices=cpu|cuda:N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N][&devices=cpu|cuda:0,cuda:1][&quant=int8|int4], oft:<checkpoint dir>[?unnorm=<key>][&batch=N][&devices=...][&quant=int8|int4], lerobot:<checkpoint dir>[?python=<interpreter>][&batch=N][&devices=...][&steps=N], python:<module>:<factory>[?python=<interpreter>][&key=value...]; diagnostics: nan-at:<policy step>, expert-drop"
                 )),
             },
         }
@@ -489,7 +681,6 @@ impl FromStr for PolicySpec {
 /// A worker's policy on the process-wide replicas of `spec` (its text, options included: one set
 /// of model replicas, each with its batcher, per distinct spec), loading them with the first
 /// worker: one replica per device, loaded in parallel.
-#[cfg(feature = "torch")]
 fn batched<M: crate::batching::BatchModel>(
     spec: &str,
     batching: Batching,
@@ -879,6 +1070,39 @@ mod tests {
         assert!("vla-eval:localhost:8000".parse::<PolicySpec>().unwrap_err().contains("ws://"));
         assert!("vla-eval:ws://h:1?replan=2".parse::<PolicySpec>().unwrap_err().contains("no options"));
         assert!("nope".parse::<PolicySpec>().unwrap_err().contains("vla-eval:ws://host:port"));
+    }
+
+    #[test]
+    fn python_host_specs_parse_and_print_back_in_canonical_order() {
+        use crate::python_host::PythonTarget;
+        let p: PolicySpec = "lerobot:ckpt?steps=10&batch=8&python=/v/bin/python&devices=cuda:0,cuda:1".parse().unwrap();
+        let PolicySpec::Python(o) = &p else { panic!("{p:?}") };
+        assert_eq!(o.target, PythonTarget::Lerobot("ckpt".into()));
+        assert_eq!(o.devices, [ModelDevice::Cuda(0), ModelDevice::Cuda(1)]);
+        assert_eq!(o.policy_options, [("steps".to_string(), "10".to_string())]);
+        assert_eq!(p.to_string(), "lerobot:ckpt?python=/v/bin/python&batch=8&devices=cuda:0,cuda:1&steps=10");
+        assert_eq!(p.to_string().parse::<PolicySpec>().unwrap(), p);
+        assert_eq!(p.model_cuda_devices(), [0, 1]);
+        assert!(p.sees_cameras());
+        // python: passes its own keys through; lerobot: refuses them
+        let p: PolicySpec = "python:pkg.mod:make?ckpt=/m&timeout_s=5".parse().unwrap();
+        let PolicySpec::Python(o) = &p else { panic!("{p:?}") };
+        assert_eq!(o.target, PythonTarget::Module { module: "pkg.mod".into(), factory: "make".into() });
+        assert_eq!(o.policy_options, [("ckpt".to_string(), "/m".to_string())]);
+        assert_eq!((o.call_timeout_s, o.batching().max_episodes), (Some(5), PythonOptions::DEFAULT_BATCH));
+        let err = |s: &str| s.parse::<PolicySpec>().unwrap_err();
+        assert!(err("lerobot:ckpt?ckpt=/m").contains("unknown option \"ckpt=/m\""), "{}", err("lerobot:ckpt?ckpt=/m"));
+        assert!(err("lerobot:ckpt?steps=0").contains("steps=N with N >= 1"));
+        assert!(err("lerobot:ckpt?benchmark=aloha_sim").contains("comes from the specs"));
+        assert!(err("python:make").contains("python:<module>:<factory>"));
+        assert!(err("python:m:f?k=1&k=2").contains("given twice"));
+        assert!(err("lerobot:ckpt?timeout_s=0").contains("timeout_s=S with S >= 1"));
+        assert!(
+            PolicySpec::Python(PythonOptions::parse("lerobot", "ckpt").unwrap())
+                .check_benchmark(Benchmark::AlohaSim)
+                .unwrap_err()
+                .contains("not there yet")
+        );
     }
 
     #[test]

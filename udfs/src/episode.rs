@@ -252,6 +252,8 @@ pub fn run_episode(
                     eef_quat: obs.eef_quat,
                     hand_quat: obs.hand_quat,
                     gripper_qpos: obs.gripper_qpos,
+                    gripper_qvel: obs.gripper_qvel,
+                    eef_mat: obs.eef_mat,
                     joint_pos: obs.joint_pos,
                     joint_vel: obs.joint_vel,
                     scene: scene.as_ref().map(|r| r.read(env, &goal, &contacts)),

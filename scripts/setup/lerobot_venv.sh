@@ -4,9 +4,10 @@
 # runs them through `lerobot:` exactly as lerobot-eval feeds them; the same venv serves a user's
 # lerobot checkpoints (`lerobot:<dir>?python=.lerobot-venv/bin/python`).
 # lerobot 0.6.1 needs Python >= 3.12 (Debian 12's python3 is 3.11): the first of python3.12,
-# pyenv's 3.12, python3.13, pyenv's 3.13 that runs (3.12: the GPU machine's, and what lerobot was probed on). torch is 2.11.0, the libtorch tch links; PyPI's torch
-# wheel brings its CUDA libraries (download.pytorch.org's CPU index is not reachable everywhere),
-# and pip's cache shares them with the OpenVLA reference venv.
+# pyenv's 3.12, python3.13, pyenv's 3.13 that runs (3.12 first: the GPU machine's, and the one
+# lerobot was probed on). torch is 2.11.0, the libtorch tch links; PyPI's torch wheel brings its
+# CUDA libraries (download.pytorch.org's CPU index is not reachable everywhere), and pip's cache
+# shares them with the OpenVLA reference venv.
 # Versions pinned to a fresh resolve of lerobot[pi,smolvla]==0.6.1 (2026-11-28).
 # Idempotent: a stamp keyed by this file's hash skips the install when nothing changed.
 set -euo pipefail

@@ -20,6 +20,18 @@ import sys
 import numpy as np
 
 
+def save_checkpoint(policy, cfg, stats, out):
+    """OUT/ckpt: the policy and its pre/post-processors (with these statistics), as training saves them."""
+    from lerobot.policies import make_pre_post_processors
+
+    pre, post = make_pre_post_processors(cfg, dataset_stats=stats)
+    ckpt = os.path.join(out, "ckpt")
+    policy.save_pretrained(ckpt)
+    pre.save_pretrained(ckpt)
+    post.save_pretrained(ckpt)
+    print(json.dumps({"checkpoint": os.path.abspath(ckpt), "parameters": sum(p.numel() for p in policy.parameters())}))
+
+
 def tiny_smolvla(out):
     import torch
     from tokenizers import Tokenizer, models, pre_tokenizers
@@ -27,7 +39,6 @@ def tiny_smolvla(out):
     from transformers.models.smolvlm.image_processing_smolvlm import SmolVLMImageProcessor
     from transformers.models.smolvlm.video_processing_smolvlm import SmolVLMVideoProcessor
     from lerobot.configs import FeatureType, PolicyFeature
-    from lerobot.policies import make_pre_post_processors
     from lerobot.policies.smolvla.configuration_smolvla import SmolVLAConfig
     from lerobot.policies.smolvla.modeling_smolvla import SmolVLAPolicy
 
@@ -67,18 +78,12 @@ def tiny_smolvla(out):
     # Statistics that keep random actions in the controller's range: state as is, actions scaled.
     stats = {"observation.state": {"mean": torch.zeros(8), "std": torch.ones(8)},
              "action": {"mean": torch.zeros(7), "std": torch.full((7,), 0.3)}}
-    pre, post = make_pre_post_processors(cfg, dataset_stats=stats)
-    ckpt = os.path.join(out, "ckpt")
-    policy.save_pretrained(ckpt)
-    pre.save_pretrained(ckpt)
-    post.save_pretrained(ckpt)
-    print(json.dumps({"checkpoint": os.path.abspath(ckpt), "parameters": sum(p.numel() for p in policy.parameters())}))
+    save_checkpoint(policy, cfg, stats, out)
 
 
 def tiny_act(out):
     import torch
     from lerobot.configs import FeatureType, PolicyFeature
-    from lerobot.policies import make_pre_post_processors
     from lerobot.policies.act.configuration_act import ACTConfig
     from lerobot.policies.act.modeling_act import ACTPolicy
 
@@ -95,12 +100,7 @@ def tiny_act(out):
     stats = {"observation.images.top": {"mean": torch.full((3, 1, 1), 0.5), "std": torch.full((3, 1, 1), 0.25)},
              "observation.state": {"mean": torch.zeros(14), "std": torch.ones(14)},
              "action": {"mean": torch.zeros(14), "std": torch.ones(14)}}
-    pre, post = make_pre_post_processors(cfg, dataset_stats=stats)
-    ckpt = os.path.join(out, "ckpt")
-    policy.save_pretrained(ckpt)
-    pre.save_pretrained(ckpt)
-    post.save_pretrained(ckpt)
-    print(json.dumps({"checkpoint": os.path.abspath(ckpt), "parameters": sum(p.numel() for p in policy.parameters())}))
+    save_checkpoint(policy, cfg, stats, out)
 
 
 def dump(record_dir):

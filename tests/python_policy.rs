@@ -129,6 +129,17 @@ fn a_lerobot_checkpoint_runs_as_lerobot_eval_feeds_it_and_its_actions_are_lerobo
     );
     assert_eq!(stored.len(), 4);
     assert_eq!(stored, recorded, "the stored actions are not the host's");
+
+    // A checkpoint file that changed since (one byte of config.json) is another identity: the
+    // resume is refused before any episode, naming the hashes.
+    let config = ckpt.join("config.json");
+    let mut text = std::fs::read_to_string(&config).unwrap();
+    text.push(' ');
+    std::fs::write(&config, text).unwrap();
+    let out = pipeline(&["run", specs.to_str().unwrap(), "--out", run.to_str().unwrap(), "--policy", &policy]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "a resume under a changed checkpoint ran:\n{stderr}");
+    assert!(stderr.contains("another configuration") && stderr.contains("checkpoint_sha256"), "{stderr}");
 }
 
 /// `python:misbehaving:make?mode=..&task=between the plate&at=3` on libero_spatial tasks 0 and 1

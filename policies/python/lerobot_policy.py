@@ -23,7 +23,6 @@ history) are refused: their state would be the batch's, not the episode's.
 import hashlib
 import importlib.metadata
 import os
-import time
 
 import numpy as np
 
@@ -59,7 +58,6 @@ def _files_sha256(directory):
 
 class LerobotPolicy:
     def __init__(self, checkpoint, device, options):
-        t0 = time.time()
         import torch
         from lerobot.configs.policies import PreTrainedConfig
         from lerobot.envs.configs import AlohaEnv, LiberoEnv
@@ -126,7 +124,6 @@ class LerobotPolicy:
         self.noise_shape = None
         if hasattr(self.cfg, "max_action_dim") and cfg.type in ("pi0", "pi05", "smolvla"):
             self.noise_shape = (chunk, int(self.cfg.max_action_dim))
-        self.load_s = time.time() - t0
 
     def _check_features(self, cfg):
         """Refuse a checkpoint whose inputs or output the benchmark cannot give or take."""

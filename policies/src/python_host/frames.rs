@@ -9,7 +9,7 @@
 
 use serde_json::{Map, Value, json};
 use std::collections::BTreeMap;
-use std::io::{self, Read, Write};
+use std::io::{self, Read};
 
 /// Longest header accepted (a host's describe() with a checkpoint's file hashes is a few KB).
 const MAX_HEADER: u32 = 16 << 20;
@@ -83,10 +83,6 @@ impl Array {
             other => Err(format!("expected float32, got {}", other.name())),
         }
     }
-
-    fn len(&self) -> usize {
-        self.shape.iter().product()
-    }
 }
 
 /// One message: a JSON header and named arrays.
@@ -123,11 +119,6 @@ impl Frame {
             out.extend_from_slice(&a.data);
         }
         out
-    }
-
-    pub fn write_to(&self, w: &mut impl Write) -> io::Result<()> {
-        w.write_all(&self.encode())?;
-        w.flush()
     }
 
     /// The next frame, `Ok(None)` at a clean end of input; a malformed frame is an `InvalidData`
@@ -183,9 +174,7 @@ fn decode_array(m: &Value, blob: &[u8]) -> Result<Array, String> {
     if end > blob.len() {
         return Err(format!("bytes {offset}..{end} lie past the blob's {} bytes", blob.len()));
     }
-    let array = Array { dtype, shape, data: blob[offset..end].to_vec() };
-    debug_assert_eq!(array.len() * dtype.size(), array.data.len());
-    Ok(array)
+    Ok(Array { dtype, shape, data: blob[offset..end].to_vec() })
 }
 
 #[cfg(test)]

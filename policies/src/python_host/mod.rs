@@ -18,12 +18,13 @@
 pub mod frames;
 mod process;
 
+use crate::Action;
 use crate::batching::{BatchModel, Request};
 use crate::placement::ModelDevice;
-use crate::{Action, PolicyError};
 use frames::{Array, Frame};
 pub use process::{HostCommand, HostProcess};
 use serde_json::{Value, json};
+use sha2::{Digest, Sha256};
 use std::path::PathBuf;
 use std::sync::Mutex;
 use std::time::Duration;
@@ -140,10 +141,8 @@ impl PythonHostConfig {
 /// The host script, written once per content hash under the temp folder (a run may start many
 /// hosts; a binary of another version writes its own).
 fn host_script() -> Result<PathBuf, String> {
-    use sha2::{Digest, Sha256};
-    let hash = Sha256::new().chain_update(HOST_SCRIPT).chain_update(LEROBOT_ADAPTER).finalize();
-    let hex: String = hash.iter().take(6).map(|b| format!("{b:02x}")).collect();
-    let dir = std::env::temp_dir().join(format!("libero-eval-host-{hex}"));
+    let hash = format!("{:x}", Sha256::new().chain_update(HOST_SCRIPT).chain_update(LEROBOT_ADAPTER).finalize());
+    let dir = std::env::temp_dir().join(format!("libero-eval-host-{}", &hash[..12]));
     let script = dir.join("libero_eval_host.py");
     if script.exists() && dir.join("lerobot_policy.py").exists() {
         return Ok(script);
@@ -219,8 +218,6 @@ pub struct PythonHostModel {
     description: Description,
     call_timeout: Duration,
     load_timeout: Duration,
-    /// Hosts started after the first (a crash, a hang, a malformed answer).
-    pub restarts: u32,
 }
 
 impl PythonHostModel {
@@ -249,7 +246,6 @@ impl PythonHostModel {
             description,
             call_timeout: config.call_timeout,
             load_timeout: config.load_timeout,
-            restarts: 0,
         })
     }
 
@@ -260,7 +256,6 @@ impl PythonHostModel {
     fn call(&mut self, requests: &[Request]) -> Result<Vec<Vec<Action>>, CallError> {
         if self.host.is_none() {
             let (host, _) = HostProcess::start(&self.command, self.load_timeout).map_err(CallError::HostDied)?;
-            self.restarts += 1;
             self.host = Some(host);
         }
         let frame = observation_frame(requests, &self.description).map_err(CallError::Policy)?;
@@ -430,20 +425,10 @@ pub fn resolve_identity(config: &PythonHostConfig, device: Option<ModelDevice>) 
     identity["interpreter_given"] = json!(model.command.interpreter.display().to_string());
     identity["host"] = json!({
         "protocol": PROTOCOL,
-        "script_sha256": sha256_hex(HOST_SCRIPT.as_bytes()),
-        "adapter_sha256": sha256_hex(LEROBOT_ADAPTER.as_bytes()),
+        "script_sha256": format!("{:x}", Sha256::digest(HOST_SCRIPT)),
+        "adapter_sha256": format!("{:x}", Sha256::digest(LEROBOT_ADAPTER)),
         "call_timeout_s": config.call_timeout.as_secs(),
     });
     PARKED.lock().map_err(|_| "the parked hosts' lock is poisoned".to_string())?.push(model);
     Ok(identity)
-}
-
-fn sha256_hex(bytes: &[u8]) -> String {
-    use sha2::{Digest, Sha256};
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
-}
-
-/// The error of a python host policy, for [`PolicyError`].
-pub fn policy_error(policy: &str, detail: String) -> PolicyError {
-    PolicyError { policy: policy.into(), detail }
 }

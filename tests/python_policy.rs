@@ -203,7 +203,9 @@ fn python_policies_that_cannot_run_are_refused_before_any_episode() {
     let act = tiny.join("ckpt");
     let py = lerobot_python();
     let reference_python = repo_root().join(".venv/bin/python");
-    let cases: Vec<(String, Vec<(&str, &str)>, String)> = vec![
+    // (policy, environment, what the refusal says)
+    type Case<'a> = (String, Vec<(&'a str, &'a str)>, String);
+    let cases: Vec<Case> = vec![
         // no interpreter named
         (format!("lerobot:{}", act.display()), vec![], "add ?python=/path/to/venv/bin/python to the policy, or set LIBERO_EVAL_PYTHON".into()),
         (format!("lerobot:{}?python=/nonexistent/bin/python", act.display()), vec![], "/nonexistent/bin/python does not exist".into()),

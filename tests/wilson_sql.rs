@@ -15,8 +15,7 @@ struct Case {
 }
 
 fn cases() -> Vec<Case> {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../tests/fixtures/wilson_statsmodels.csv");
-    let text = std::fs::read_to_string(path).unwrap();
+    let text = std::fs::read_to_string(libero_e2e::repo_root().join("tests/fixtures/wilson_statsmodels.csv")).unwrap();
     text.lines()
         .filter(|l| !l.starts_with('#') && !l.starts_with('k'))
         .map(|l| {

@@ -10,7 +10,6 @@ use datafusion::prelude::SessionContext;
 use indicatif::ProgressBar;
 use libero_policies::PolicySpec;
 use libero_schema::{Suite, tables};
-use libero_sim::bundle::BundleSet;
 use libero_udfs::rollout::{RolloutContext, RunProtocol, rollout_udf};
 use libero_udfs::run_store::RunStore;
 use std::collections::BTreeMap;
@@ -18,8 +17,7 @@ use std::sync::Arc;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn episodes_written_to_an_object_store_url_are_listed_and_queryable() {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/bundles");
-    let bundles = Arc::new(BundleSet::open(&root).unwrap_or_else(|e| panic!("{e}\nrun ./setup.sh --tests")));
+    let bundles = Arc::new(libero_e2e::bundles());
     let store = RunStore::open("memory:///run-under-test/").unwrap();
     assert_eq!(store.base_url().scheme(), "memory");
     let max_steps = BTreeMap::from([(Suite::LIBERO_OBJECT, 5)]);

@@ -9,8 +9,8 @@ use datafusion::prelude::SessionContext;
 
 /// Rows of a fixture CSV (comments and the header skipped), parsed as f64.
 fn fixture(name: &str) -> Vec<Vec<f64>> {
-    let path = format!("{}/../tests/fixtures/{name}", env!("CARGO_MANIFEST_DIR"));
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
+    let path = libero_e2e::repo_root().join("tests/fixtures").join(name);
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let rows: Vec<Vec<f64>> = text
         .lines()
         .filter(|l| !l.starts_with('#'))

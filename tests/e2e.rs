@@ -14,6 +14,7 @@ mod dataflow;
 mod distributed;
 mod docs;
 mod doctor;
+mod ensembling;
 mod env;
 mod expert;
 mod failure_modes;

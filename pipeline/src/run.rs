@@ -65,6 +65,9 @@ pub struct Args {
     ///     starts, fed as lerobot-eval feeds it (interpreter: python= or LIBERO_EVAL_PYTHON)
     ///   python:<module>:<factory>[?python=<interpreter>][&key=value..]: any Python policy
     ///     object with describe() and act(batch), in that process (see docs: Policies)
+    /// Chunked policies (torchscript, oft, openpi, starvla, lerobot, python) also take
+    ///   ensemble=newest:N|average:N|ema:ALPHA:N (vla-eval's rules, the model asked every N
+    ///   actions), temporal:K (ACT's temporal ensembling) or adaptive:H:ALPHA (starVLA's)
     #[arg(long, verbatim_doc_comment)]
     policy: PolicySpec,
     /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400;

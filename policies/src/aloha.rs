@@ -50,6 +50,10 @@ pub trait AlohaPolicy: Send {
     fn wants_top_camera(&self) -> bool {
         false
     }
+    /// As [`crate::Policy::set_ensemble`].
+    fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
+        Err(format!("ensemble={ensemble}: this policy predicts no action chunks"))
+    }
 }
 
 /// The positive control: ACT's scripted policy as the env recorded it for this episode's objects.

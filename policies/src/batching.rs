@@ -418,6 +418,11 @@ impl Drop for BatchedPolicy {
 }
 
 impl Policy for BatchedPolicy {
+    fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
+        self.chunker.set_ensemble(Some(ensemble));
+        Ok(())
+    }
+
     fn reset(&mut self, instruction: &str, episode_seed: u64) {
         self.instruction = instruction.to_string();
         self.episode_seed = episode_seed;

@@ -5,9 +5,12 @@
 //! of the 10 actions π0 predicts (`replan_steps = 5`), OpenVLA-OFT executes all 8 of its chunk,
 //! OpenVLA predicts one. The rollout asks a policy for one action per env step; a chunked policy
 //! keeps an [`ActionChunker`], asks its model only when the chunker is empty, and records both
-//! lengths (predicted and executed) in its identity, since they are separate choices.
+//! lengths (predicted and executed) in its identity, since they are separate choices. With an
+//! [`Ensemble`] rule (`ensemble=`), the chunker asks as that rule needs and combines overlapping
+//! chunks by it ([`crate::ensembling`]).
 
 use crate::Action;
+use crate::ensembling::{Ensemble, Ensembler};
 use std::collections::VecDeque;
 
 /// The queue of a chunk's actions still to execute; `A` is the benchmark's action (LIBERO's
@@ -19,12 +22,32 @@ pub struct ActionChunker<A = Action> {
     /// Length of the last chunk the model predicted (None before the first).
     last_predicted: Option<usize>,
     queries: u64,
+    /// Set by `ensemble=`: it decides when to ask and what runs, in place of `queue`.
+    ensembler: Option<Ensembler<A>>,
 }
 
-impl<A> ActionChunker<A> {
+impl<A: Copy + AsRef<[f32]> + AsMut<[f32]>> ActionChunker<A> {
     /// Execute at most `replan_steps` (≥ 1) actions of each predicted chunk.
     pub fn new(replan_steps: usize) -> Self {
-        ActionChunker { replan_steps: replan_steps.max(1), queue: VecDeque::new(), last_predicted: None, queries: 0 }
+        ActionChunker {
+            replan_steps: replan_steps.max(1),
+            queue: VecDeque::new(),
+            last_predicted: None,
+            queries: 0,
+            ensembler: None,
+        }
+    }
+
+    /// Combine overlapping chunks by `ensemble` (asking the model as it needs) instead of executing
+    /// `replan_steps` of each; `None`: no ensembling. Set before an episode.
+    pub fn set_ensemble(&mut self, ensemble: Option<Ensemble>) {
+        self.ensembler = ensemble.map(Ensembler::new);
+        self.queue.clear();
+    }
+
+    /// The ensembling rule, if any.
+    pub fn ensemble(&self) -> Option<Ensemble> {
+        self.ensembler.as_ref().map(Ensembler::rule)
     }
 
     /// Forget the queue (a new episode).
@@ -32,11 +55,17 @@ impl<A> ActionChunker<A> {
         self.queue.clear();
         self.last_predicted = None;
         self.queries = 0;
+        if let Some(e) = &mut self.ensembler {
+            e.reset();
+        }
     }
 
     /// The model must be asked before the next action.
     pub fn needs_query(&self) -> bool {
-        self.queue.is_empty()
+        match &self.ensembler {
+            Some(e) => e.needs_query(),
+            None => self.queue.is_empty(),
+        }
     }
 
     /// Queue the first `replan_steps` actions of a predicted chunk. A chunk shorter than
@@ -48,6 +77,9 @@ impl<A> ActionChunker<A> {
         }
         self.last_predicted = Some(chunk.len());
         self.queries += 1;
+        if let Some(e) = &mut self.ensembler {
+            return e.push_chunk(&chunk);
+        }
         self.queue.clear();
         self.queue.extend(chunk.into_iter().take(self.replan_steps));
         Ok(())
@@ -55,7 +87,10 @@ impl<A> ActionChunker<A> {
 
     /// The next action to execute, if any is queued.
     pub fn next_action(&mut self) -> Option<A> {
-        self.queue.pop_front()
+        match &mut self.ensembler {
+            Some(e) => e.next_action(),
+            None => self.queue.pop_front(),
+        }
     }
 
     pub fn replan_steps(&self) -> usize {

@@ -10,6 +10,7 @@
 //! | naming a policy (`--policy` strings), its identity, making instances | [`PolicySpec`] (`spec.rs`) |
 //! | the published loops' transforms: images, state, action un-normalisation, gripper | [`preprocess`], [`postprocess`] |
 //! | driving a model: open-loop chunks, one batched forward for many episodes, replicas on several devices | [`chunking`], [`batching`] |
+//! | combining overlapping chunks (`ensemble=`: vla-eval's, ACT's and starVLA's rules) | [`ensembling`] |
 //! | where a model runs and how its weights are stored (`devices=`, `quant=`) | [`placement`], `models::quant` |
 //! | libtorch's CUDA backend loaded at start; no silent CPU fallback of a model | `cuda_backend`, `models::cpu_fallback` (feature `torch`) |
 //! | in-process model ports on libtorch: TorchScript, OpenVLA, OpenVLA-OFT | `models` (feature `torch`) |
@@ -41,6 +42,7 @@ pub mod batching;
 pub mod chunking;
 #[cfg(feature = "torch")]
 pub mod cuda_backend;
+pub mod ensembling;
 mod expert;
 #[cfg(feature = "torch")]
 pub mod models;
@@ -163,5 +165,10 @@ pub trait Policy: Send {
     /// for an action from a queued chunk and for policies that do not time their model apart.
     fn last_timing(&self) -> Option<ActTiming> {
         None
+    }
+    /// Combine this policy's action chunks by `ensemble` (`ensemble=`), asking its model as the
+    /// rule needs; a policy without chunks refuses (the spec parser refuses it first).
+    fn set_ensemble(&mut self, ensemble: ensembling::Ensemble) -> Result<(), String> {
+        Err(format!("ensemble={ensemble}: this policy predicts no action chunks"))
     }
 }

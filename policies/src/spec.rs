@@ -1,5 +1,6 @@
 //! Naming a policy on the command line and recording its identity in the run manifest.
 
+use crate::ensembling::{ENSEMBLE_HELP, Ensemble};
 use crate::placement::{Attention, ModelDevice, Quantization, devices_text, parse_devices};
 use crate::remote::openpi::{LIBERO_REPLAN_STEPS, OpenpiConfig, OpenpiPolicy};
 use crate::remote::openpi_aloha::{ALOHA_REPLAN_STEPS, OpenpiAlohaPolicy};
@@ -27,7 +28,12 @@ pub enum PolicySpec {
     /// (`torchscript:<file>[?batch=N[&wait_ms=W]][&devices=D]`; with `batch`, the rollout workers'
     /// queries share forwards of up to N episodes; `devices`: the one device it runs on, e.g.
     /// `devices=cpu` to run it on the CPU on purpose, see `models::cpu_fallback`).
-    TorchScript { file: std::path::PathBuf, batch: Option<Batching>, device: Option<ModelDevice> },
+    TorchScript {
+        file: std::path::PathBuf,
+        batch: Option<Batching>,
+        device: Option<ModelDevice>,
+        ensemble: Option<Ensemble>,
+    },
     /// OpenVLA in process from a Hugging Face checkpoint directory
     /// (`openvla:<dir>[?unnorm=<key>][&batch=N[&wait_ms=W]][&devices=D,D...][&quant=int8|int4]`;
     /// with `batch`, the rollout workers' queries share forwards of up to N episodes; several
@@ -40,7 +46,7 @@ pub enum PolicySpec {
     /// A policy served by openpi's websocket policy server (`openpi:ws://host:port[?replan=N]`);
     /// without `replan`, the executed part of each chunk is the benchmark's example's (5 on LIBERO,
     /// 10 on ALOHA-sim; [`PolicySpec::openpi_replan_steps`]).
-    Openpi { url: String, replan_steps: Option<usize> },
+    Openpi { url: String, replan_steps: Option<usize>, ensemble: Option<Ensemble> },
     /// A model served by vla-eval's model server (`vla-eval:ws://host:port`): the server's
     /// observation params from its HELLO decide what is sent; it keeps the action chunks.
     VlaEval { url: String },
@@ -68,6 +74,8 @@ pub struct PythonOptions {
     pub load_timeout_s: Option<u64>,
     /// Passed to the policy (`--option key=value`), in the order given.
     pub policy_options: Vec<(String, String)>,
+    /// `ensemble=`: how the chunks the host returns are combined.
+    pub ensemble: Option<Ensemble>,
 }
 
 impl PythonOptions {
@@ -183,6 +191,7 @@ impl PythonOptions {
             call_timeout_s: seconds("timeout_s")?,
             load_timeout_s: seconds("load_timeout_s")?,
             policy_options,
+            ensemble: None,
         })
     }
 }
@@ -195,6 +204,7 @@ pub struct StarVlaOptions {
     pub stats: Option<std::path::PathBuf>,
     pub chunk: Option<usize>,
     pub state: Option<bool>,
+    pub ensemble: Option<Ensemble>,
 }
 
 impl StarVlaOptions {
@@ -225,6 +235,8 @@ pub struct CheckpointOptions {
     /// The language model's attention (`attention=eager|sdpa`); `None`: the model's default on
     /// its device ([`Attention::model_default`]).
     pub attention: Option<Attention>,
+    /// `ensemble=` (`oft:` only: OpenVLA predicts one action at a time).
+    pub ensemble: Option<Ensemble>,
 }
 
 impl CheckpointOptions {
@@ -316,18 +328,26 @@ impl PolicySpec {
 
     /// A fresh instance for one rollout worker.
     pub fn instantiate(&self) -> Result<Box<dyn Policy>, PolicyError> {
+        let mut policy = self.instantiate_kind()?;
+        if let Some(e) = self.ensemble() {
+            policy.set_ensemble(e).map_err(|detail| PolicyError { policy: self.to_string(), detail })?;
+        }
+        Ok(policy)
+    }
+
+    fn instantiate_kind(&self) -> Result<Box<dyn Policy>, PolicyError> {
         Ok(match self {
             PolicySpec::Random => Box::new(RandomPolicy::new()),
             PolicySpec::Lift => Box::new(LiftPolicy),
             PolicySpec::Expert => Box::new(Expert::new()),
             PolicySpec::NanAt(n) => Box::new(NanAtPolicy { at: *n }),
             PolicySpec::ExpertDrop => Box::new(ExpertDrop::new()),
-            PolicySpec::TorchScript { file, batch, device } => {
+            PolicySpec::TorchScript { file, batch, device, .. } => {
                 load_torchscript(file, *batch, *device, &self.to_string())?
             }
             PolicySpec::OpenVla(o) => load_openvla(o, &self.to_string())?,
             PolicySpec::Oft(o) => load_oft(o, &self.to_string())?,
-            PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
+            PolicySpec::Openpi { url, replan_steps, .. } => Box::new(OpenpiPolicy::connect(OpenpiConfig {
                 replan_steps: Self::openpi_replan_steps(*replan_steps, Benchmark::Libero),
                 ..OpenpiConfig::new(url.clone())
             })?),
@@ -347,17 +367,25 @@ impl PolicySpec {
     /// A fresh instance for one rollout worker of an ALOHA-sim run; kinds without an ALOHA form
     /// are refused by [`check_benchmark`](Self::check_benchmark) before any episode.
     pub fn instantiate_aloha(&self) -> Result<Box<dyn crate::aloha::AlohaPolicy>, PolicyError> {
+        let mut policy = self.instantiate_aloha_kind()?;
+        if let Some(e) = self.ensemble() {
+            policy.set_ensemble(e).map_err(|detail| PolicyError { policy: self.to_string(), detail })?;
+        }
+        Ok(policy)
+    }
+
+    fn instantiate_aloha_kind(&self) -> Result<Box<dyn crate::aloha::AlohaPolicy>, PolicyError> {
         use crate::aloha::{NanAtAloha, RandomWalkAloha, ScriptedAloha};
         Ok(match self {
             PolicySpec::Random => Box::new(RandomWalkAloha::new()),
             PolicySpec::Expert => Box::new(ScriptedAloha),
             PolicySpec::NanAt(n) => Box::new(NanAtAloha::new(*n)),
-            PolicySpec::Openpi { url, replan_steps } => Box::new(OpenpiAlohaPolicy::connect(OpenpiConfig {
+            PolicySpec::Openpi { url, replan_steps, .. } => Box::new(OpenpiAlohaPolicy::connect(OpenpiConfig {
                 replan_steps: Self::openpi_replan_steps(*replan_steps, Benchmark::AlohaSim),
                 ..OpenpiConfig::new(url.clone())
             })?),
             #[cfg(feature = "torch")]
-            PolicySpec::TorchScript { file, batch: None, device } => {
+            PolicySpec::TorchScript { file, batch: None, device, .. } => {
                 Box::new(crate::models::torchscript_aloha::TorchScriptAloha::load_on(file, *device)?)
             }
             _ => {
@@ -448,8 +476,22 @@ impl PolicySpec {
     /// The identity for the run manifest, asking the policy itself where only it knows (a remote
     /// server's metadata): a server that cannot be reached fails the run before any episode.
     pub fn resolve_identity(&self, benchmark: Benchmark) -> Result<serde_json::Value, PolicyError> {
+        let mut identity = self.resolve_kind_identity(benchmark)?;
+        self.add_ensemble(&mut identity);
+        Ok(identity)
+    }
+
+    /// Records the ensembling rule (a resume under another rule is then refused, as for any other
+    /// identity change).
+    fn add_ensemble(&self, identity: &mut serde_json::Value) {
+        if let (Some(e), Some(object)) = (self.ensemble(), identity.as_object_mut()) {
+            object.insert("ensemble".into(), serde_json::json!({"rule": e.to_string(), "reference": e.reference()}));
+        }
+    }
+
+    fn resolve_kind_identity(&self, benchmark: Benchmark) -> Result<serde_json::Value, PolicyError> {
         match (self, benchmark) {
-            (PolicySpec::Openpi { url, replan_steps }, Benchmark::AlohaSim) => {
+            (PolicySpec::Openpi { url, replan_steps, .. }, Benchmark::AlohaSim) => {
                 Ok(OpenpiAlohaPolicy::connect(OpenpiConfig {
                     replan_steps: Self::openpi_replan_steps(*replan_steps, benchmark),
                     ..OpenpiConfig::new(url.clone())
@@ -489,7 +531,7 @@ impl PolicySpec {
 
     fn resolve_libero_identity(&self) -> Result<serde_json::Value, PolicyError> {
         match self {
-            PolicySpec::Openpi { url, replan_steps } => Ok(OpenpiPolicy::connect(OpenpiConfig {
+            PolicySpec::Openpi { url, replan_steps, .. } => Ok(OpenpiPolicy::connect(OpenpiConfig {
                 replan_steps: Self::openpi_replan_steps(*replan_steps, Benchmark::Libero),
                 ..OpenpiConfig::new(url.clone())
             })?
@@ -509,7 +551,7 @@ impl PolicySpec {
                 Ok(identity)
             }
             #[cfg(feature = "torch")]
-            PolicySpec::TorchScript { file, batch, device } => {
+            PolicySpec::TorchScript { file, batch, device, .. } => {
                 Ok(crate::models::torchscript::TorchScriptModel::load_on(file, *device)?
                     .identity(batch.map(|b| b.max_episodes)))
             }
@@ -540,6 +582,12 @@ impl PolicySpec {
     /// Identity for the manifest: what a reader needs to know which policy produced the steps
     /// (checkpoint hash, unnorm key, chunking and image preprocessing for model policies).
     pub fn identity(&self) -> serde_json::Value {
+        let mut identity = self.kind_identity();
+        self.add_ensemble(&mut identity);
+        identity
+    }
+
+    fn kind_identity(&self) -> serde_json::Value {
         match self {
             PolicySpec::Random => serde_json::json!({
                 "kind": "baseline", "name": "random", "distribution": "uniform [-1,1]^7",
@@ -567,7 +615,7 @@ impl PolicySpec {
                 "kind": "torchscript", "file": file.display().to_string(),
                 "sha256": "read at run start (resolve_identity)",
             }),
-            PolicySpec::Openpi { url, replan_steps } => serde_json::json!({
+            PolicySpec::Openpi { url, replan_steps, .. } => serde_json::json!({
                 "kind": "remote", "name": "openpi", "url": url, "replan_steps": replan_steps,
                 "server_metadata": "read at run start (resolve_identity)",
             }),
@@ -595,21 +643,35 @@ impl PolicySpec {
 
 impl fmt::Display for PolicySpec {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
+        let base = KindText(self).to_string();
+        match self.ensemble() {
+            None => f.write_str(&base),
+            Some(e) => write!(f, "{base}{}ensemble={e}", if base.contains('?') { '&' } else { '?' }),
+        }
+    }
+}
+
+/// A policy's text without `ensemble=` (its kind and the kind's own options).
+struct KindText<'a>(&'a PolicySpec);
+
+impl fmt::Display for KindText<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let spec = self.0;
+        match spec {
             PolicySpec::Random => f.write_str("random"),
             PolicySpec::Lift => f.write_str("lift"),
             PolicySpec::Expert => f.write_str("expert"),
             PolicySpec::NanAt(n) => write!(f, "nan-at:{n}"),
             PolicySpec::ExpertDrop => f.write_str("expert-drop"),
             PolicySpec::OpenVla(o) | PolicySpec::Oft(o) => {
-                let kind = if matches!(self, PolicySpec::Oft(_)) { "oft" } else { "openvla" };
+                let kind = if matches!(spec, PolicySpec::Oft(_)) { "oft" } else { "openvla" };
                 let options = o.options();
                 match options.is_empty() {
                     true => write!(f, "{kind}:{}", o.dir.display()),
                     false => write!(f, "{kind}:{}?{}", o.dir.display(), options.join("&")),
                 }
             }
-            PolicySpec::TorchScript { file, batch, device } => {
+            PolicySpec::TorchScript { file, batch, device, .. } => {
                 let mut options: Vec<String> = batch.iter().flat_map(Batching::options).collect();
                 options.extend(device.iter().map(|d| format!("devices={d}")));
                 match options.is_empty() {
@@ -617,8 +679,8 @@ impl fmt::Display for PolicySpec {
                     false => write!(f, "torchscript:{}?{}", file.display(), options.join("&")),
                 }
             }
-            PolicySpec::Openpi { url, replan_steps: None } => write!(f, "openpi:{url}"),
-            PolicySpec::Openpi { url, replan_steps: Some(n) } => write!(f, "openpi:{url}?replan={n}"),
+            PolicySpec::Openpi { url, replan_steps: None, .. } => write!(f, "openpi:{url}"),
+            PolicySpec::Openpi { url, replan_steps: Some(n), .. } => write!(f, "openpi:{url}?replan={n}"),
             PolicySpec::VlaEval { url } => write!(f, "vla-eval:{url}"),
             PolicySpec::StarVla(o) => {
                 let mut options: Vec<String> = o.unnorm_key.iter().map(|k| format!("unnorm={k}")).collect();
@@ -648,7 +710,79 @@ impl fmt::Display for PolicySpec {
 
 impl FromStr for PolicySpec {
     type Err = String;
+    /// `ensemble=` is a driver option any chunked policy takes, so it is read here, before the
+    /// kind's own options.
     fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let (rest, ensemble) = take_ensemble(s)?;
+        let spec = Self::parse_kind(&rest)?;
+        match ensemble {
+            None => Ok(spec),
+            Some(e) => spec.with_ensemble(e).map_err(|why| format!("{s}: {why}")),
+        }
+    }
+}
+
+/// `s` without its `ensemble=` option, and the rule it names.
+fn take_ensemble(s: &str) -> Result<(String, Option<Ensemble>), String> {
+    let Some((target, query)) = s.split_once('?') else { return Ok((s.to_string(), None)) };
+    let (mut ensemble, mut others) = (None, Vec::new());
+    for option in query.split('&') {
+        match option.strip_prefix("ensemble=") {
+            Some(_) if ensemble.is_some() => return Err(format!("{s}: ensemble is given twice")),
+            Some(rule) => ensemble = Some(rule.parse::<Ensemble>()?),
+            None => others.push(option),
+        }
+    }
+    Ok(match others.is_empty() {
+        true => (target.to_string(), ensemble),
+        false => (format!("{target}?{}", others.join("&")), ensemble),
+    })
+}
+
+impl PolicySpec {
+    /// The chunk-ensembling rule of a chunked policy (`ensemble=`), if any.
+    pub fn ensemble(&self) -> Option<Ensemble> {
+        match self {
+            PolicySpec::TorchScript { ensemble, .. } | PolicySpec::Openpi { ensemble, .. } => *ensemble,
+            PolicySpec::Oft(o) => o.ensemble,
+            PolicySpec::StarVla(o) => o.ensemble,
+            PolicySpec::Python(o) => o.ensemble,
+            _ => None,
+        }
+    }
+
+    /// This policy with its chunks combined by `e`; refused where there is nothing to combine, or
+    /// where another option already says when the model is asked.
+    fn with_ensemble(mut self, e: Ensemble) -> Result<Self, String> {
+        let asked_by = |option: &str| {
+            format!(
+                "{option} and ensemble={e} both say when the model is asked; ensemble=newest|average|ema:..:N asks every N actions, temporal and adaptive every step"
+            )
+        };
+        match &mut self {
+            PolicySpec::TorchScript { ensemble, .. } | PolicySpec::Oft(CheckpointOptions { ensemble, .. }) => {
+                *ensemble = Some(e)
+            }
+            PolicySpec::Openpi { replan_steps: Some(_), .. } => return Err(asked_by("replan=N")),
+            PolicySpec::Openpi { ensemble, .. } => *ensemble = Some(e),
+            PolicySpec::StarVla(StarVlaOptions { chunk: Some(_), .. }) => return Err(asked_by("chunk=N")),
+            PolicySpec::StarVla(o) => o.ensemble = Some(e),
+            PolicySpec::Python(o) if o.policy_options.iter().any(|(k, _)| k == "steps") => {
+                return Err(asked_by("steps=N"));
+            }
+            PolicySpec::Python(o) => o.ensemble = Some(e),
+            PolicySpec::OpenVla(_) => {
+                return Err("OpenVLA predicts one action per query, so there are no chunks to ensemble".into());
+            }
+            PolicySpec::VlaEval { .. } => {
+                return Err("vla-eval's server keeps the action chunks and sends one action at a time; set its own action_ensemble where the server is started".into());
+            }
+            _ => return Err("this policy predicts no action chunks, so there is nothing to ensemble".into()),
+        }
+        Ok(self)
+    }
+
+    fn parse_kind(s: &str) -> Result<Self, String> {
         match s {
             "random" => Ok(PolicySpec::Random),
             "lift" => Ok(PolicySpec::Lift),
@@ -671,7 +805,7 @@ impl FromStr for PolicySpec {
             _ => match s.strip_prefix("nan-at:").map(str::parse) {
                 Some(Ok(n)) => Ok(PolicySpec::NanAt(n)),
                 _ => Err(format!(
-                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1], torchscript:<model.pt>[?batch=N][&devices=cpu|cuda:N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N][&devices=cpu|cuda:0,cuda:1][&quant=int8|int4], oft:<checkpoint dir>[?unnorm=<key>][&batch=N][&devices=...][&quant=int8|int4], lerobot:<checkpoint dir>[?python=<interpreter>][&batch=N][&devices=...][&steps=N], python:<module>:<factory>[?python=<interpreter>][&key=value...]; diagnostics: nan-at:<policy step>, expert-drop"
+                    "unknown policy {s:?}; known: random, lift, expert, openpi:ws://host:port[?replan=N], vla-eval:ws://host:port, starvla:ws://host:port[?unnorm=<key>][&stats=<dataset_statistics.json>][&chunk=N][&state=0|1], torchscript:<model.pt>[?batch=N][&devices=cpu|cuda:N], openvla:<checkpoint dir>[?unnorm=<key>][&batch=N][&devices=cpu|cuda:0,cuda:1][&quant=int8|int4], oft:<checkpoint dir>[?unnorm=<key>][&batch=N][&devices=...][&quant=int8|int4], lerobot:<checkpoint dir>[?python=<interpreter>][&batch=N][&devices=...][&steps=N], python:<module>:<factory>[?python=<interpreter>][&key=value...]; diagnostics: nan-at:<policy step>, expert-drop; chunked policies (torchscript, oft, openpi, starvla, lerobot, python) also take {ENSEMBLE_HELP}"
                 )),
             },
         }
@@ -923,7 +1057,7 @@ fn checkpoint_options(kind: &str, rest: &str) -> Result<CheckpointOptions, Strin
             "{kind}:{rest}: several devices need batch=N (each device's replica serves its episodes through its own batcher)"
         ));
     }
-    Ok(CheckpointOptions { dir: dir.into(), unnorm_key, batch, quant, devices, attention })
+    Ok(CheckpointOptions { dir: dir.into(), unnorm_key, batch, quant, devices, attention, ensemble: None })
 }
 
 /// The benchmark a TorchScript module's `model.json` declares (`"benchmark"`, LIBERO when absent),
@@ -957,7 +1091,12 @@ fn parse_torchscript(rest: &str) -> Result<PolicySpec, String> {
             Err(e) => return Err(format!("torchscript:{rest}: expected {} ({e})", option_help("device"))),
         },
     };
-    Ok(PolicySpec::TorchScript { file: file.into(), batch: batching("torchscript", rest, &options)?, device })
+    Ok(PolicySpec::TorchScript {
+        file: file.into(),
+        batch: batching("torchscript", rest, &options)?,
+        device,
+        ensemble: None,
+    })
 }
 
 /// `ws://host:port[?replan=N]` of `openpi:...`.
@@ -977,7 +1116,7 @@ fn parse_openpi(rest: &str) -> Result<PolicySpec, String> {
             }
         },
     };
-    Ok(PolicySpec::Openpi { url: url.to_string(), replan_steps })
+    Ok(PolicySpec::Openpi { url: url.to_string(), replan_steps, ensemble: None })
 }
 
 /// `ws://host:port[?unnorm=<key>][&stats=<file>][&chunk=N][&state=0|1]` of `starvla:...`
@@ -1010,6 +1149,7 @@ fn parse_starvla(rest: &str) -> Result<PolicySpec, String> {
         stats: text("stats")?.map(Into::into),
         chunk,
         state,
+        ensemble: None,
     }))
 }
 
@@ -1031,6 +1171,37 @@ mod tests {
     use super::*;
 
     #[test]
+    fn ensemble_is_an_option_of_every_chunked_policy_and_refused_where_it_cannot_mean_anything() {
+        for (text, printed) in [
+            ("oft:/c?ensemble=average:4&batch=8", "oft:/c?batch=8&ensemble=average:4"),
+            ("torchscript:/m.pt?ensemble=temporal:0.01", "torchscript:/m.pt?ensemble=temporal:0.01"),
+            ("openpi:ws://h:1?ensemble=ema:0.5:2", "openpi:ws://h:1?ensemble=ema:0.5:2"),
+            ("starvla:ws://h:1?ensemble=adaptive:3:0.1&unnorm=k", "starvla:ws://h:1?unnorm=k&ensemble=adaptive:3:0.1"),
+            ("python:m:f?ensemble=newest:2&size=4", "python:m:f?size=4&ensemble=newest:2"),
+        ] {
+            let p: PolicySpec = text.parse().unwrap_or_else(|e| panic!("{text}: {e}"));
+            assert_eq!(p.to_string(), printed);
+            assert_eq!(printed.parse::<PolicySpec>().unwrap(), p, "{printed}");
+            let rule = printed.rsplit("ensemble=").next().unwrap();
+            assert_eq!(p.ensemble().unwrap().to_string(), rule);
+            assert_eq!(p.identity()["ensemble"]["rule"], rule, "{}", p.identity());
+        }
+        for (text, says) in [
+            ("openvla:/c?ensemble=average:2", "one action per query"),
+            ("vla-eval:ws://h:1?ensemble=average:2", "set its own action_ensemble"),
+            ("lift?ensemble=average:2", "nothing to ensemble"),
+            ("openpi:ws://h:1?replan=5&ensemble=average:2", "replan=N and ensemble=average:2 both say"),
+            ("starvla:ws://h:1?chunk=7&ensemble=temporal:0.01", "chunk=N and ensemble"),
+            ("lerobot:/c?steps=5&ensemble=average:2", "steps=N and ensemble"),
+            ("oft:/c?ensemble=average:2&ensemble=newest:2", "given twice"),
+            ("oft:/c?ensemble=median:2", "unknown rule"),
+        ] {
+            let err = text.parse::<PolicySpec>().unwrap_err();
+            assert!(err.contains(says), "{text}: {err}");
+        }
+    }
+
+    #[test]
     fn starvla_specs_parse_in_any_option_order_and_print_back() {
         let p: PolicySpec = "starvla:ws://localhost:10093".parse().unwrap();
         assert_eq!(p.to_string(), "starvla:ws://localhost:10093");
@@ -1043,6 +1214,7 @@ mod tests {
             stats: Some("/c/dataset_statistics.json".into()),
             chunk: Some(7),
             state: Some(true),
+            ensemble: None,
         };
         assert_eq!(p, PolicySpec::StarVla(expected.clone()));
         let printed = "starvla:ws://h:1?unnorm=franka&stats=/c/dataset_statistics.json&chunk=7&state=1";
@@ -1108,7 +1280,7 @@ mod tests {
     #[test]
     fn openpi_specs_parse_and_print_back() {
         let p: PolicySpec = "openpi:ws://localhost:8000".parse().unwrap();
-        assert_eq!(p, PolicySpec::Openpi { url: "ws://localhost:8000".into(), replan_steps: None });
+        assert_eq!(p, PolicySpec::Openpi { url: "ws://localhost:8000".into(), replan_steps: None, ensemble: None });
         assert_eq!(PolicySpec::openpi_replan_steps(None, Benchmark::Libero), 5);
         assert_eq!(PolicySpec::openpi_replan_steps(None, Benchmark::AlohaSim), 10);
         assert_eq!(PolicySpec::openpi_replan_steps(Some(3), Benchmark::AlohaSim), 3);
@@ -1204,6 +1376,7 @@ mod tests {
                 quant: Quantization::None,
                 devices: Vec::new(),
                 attention: None,
+                ensemble: None,
             };
             let expected = PolicySpec::OpenVla(options.clone());
             assert_eq!(p, expected, "{text}");

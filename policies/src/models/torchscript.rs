@@ -387,6 +387,11 @@ impl TorchScriptPolicy {
 }
 
 impl Policy for TorchScriptPolicy {
+    fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
+        self.chunker.set_ensemble(Some(ensemble));
+        Ok(())
+    }
+
     fn reset(&mut self, _instruction: &str, _episode_seed: u64) {
         self.chunker.reset();
     }

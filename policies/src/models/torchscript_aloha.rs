@@ -202,6 +202,11 @@ impl TorchScriptAloha {
 }
 
 impl AlohaPolicy for TorchScriptAloha {
+    fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
+        self.chunker.set_ensemble(Some(ensemble));
+        Ok(())
+    }
+
     fn reset(&mut self, _episode_seed: u64) {
         self.chunker.reset();
     }

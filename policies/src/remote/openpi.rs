@@ -318,6 +318,11 @@ impl OpenpiPolicy {
 }
 
 impl Policy for OpenpiPolicy {
+    fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
+        self.chunker.set_ensemble(Some(ensemble));
+        Ok(())
+    }
+
     fn reset(&mut self, instruction: &str, _episode_seed: u64) {
         self.prompt = instruction.to_string();
         self.chunker.reset();

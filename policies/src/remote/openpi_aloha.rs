@@ -107,6 +107,11 @@ impl OpenpiAlohaPolicy {
 }
 
 impl AlohaPolicy for OpenpiAlohaPolicy {
+    fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
+        self.chunker.set_ensemble(Some(ensemble));
+        Ok(())
+    }
+
     fn reset(&mut self, _episode_seed: u64) {
         self.chunker.reset();
     }

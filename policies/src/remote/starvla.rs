@@ -464,6 +464,11 @@ impl StarVlaPolicy {
 }
 
 impl Policy for StarVlaPolicy {
+    fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
+        self.chunker.set_ensemble(Some(ensemble));
+        Ok(())
+    }
+
     fn reset(&mut self, instruction: &str, _episode_seed: u64) {
         self.instruction = instruction.to_string();
         self.chunker.reset();

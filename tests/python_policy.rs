@@ -140,6 +140,29 @@ fn a_lerobot_checkpoint_runs_as_lerobot_eval_feeds_it_and_its_actions_are_lerobo
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "a resume under a changed checkpoint ran:\n{stderr}");
     assert!(stderr.contains("another configuration") && stderr.contains("checkpoint_sha256"), "{stderr}");
+
+    // Under ensemble=, the host answers whole chunks (the checkpoint's chunk_size 10, not its 5
+    // executed) and temporal ensembling asks every step: 3 policy steps are 3 calls.
+    std::fs::create_dir_all(d.join("one")).unwrap();
+    let one = self::specs(&d.join("one"), "0", "1");
+    let (run, record) = (d.join("run-ensembled"), d.join("record-ensembled"));
+    let policy = format!("lerobot:{}?python={}&batch=1&ensemble=temporal:0.01", ckpt.display(), py.display());
+    let out = pipeline_with_env(
+        &["run", one.to_str().unwrap(), "--out", run.to_str().unwrap(), "--policy", &policy]
+            .into_iter()
+            .chain(["--max-steps", "3", "--jobs", "1"])
+            .collect::<Vec<_>>(),
+        &[("LIBERO_EVAL_HOST_RECORD", record.to_str().unwrap())],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert_eq!(sql_rows(&run, "SELECT n_policy_steps, coalesce(error_kind, '-') FROM episodes", &[]), [["3", "-"]]);
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("manifest.json")).unwrap()).unwrap();
+    let id = &manifest["policy_identity"];
+    assert_eq!((&id["executed_steps"], &id["chunk_size"]), (&serde_json::json!(10), &serde_json::json!(10)), "{id}");
+    assert_eq!(id["ensemble"]["rule"], "temporal:0.01");
+    assert_eq!(std::fs::read_dir(&record).unwrap().count(), 3, "one call per step");
 }
 
 /// `python:misbehaving:make?mode=..&task=between the plate&at=3` on libero_spatial tasks 0 and 1

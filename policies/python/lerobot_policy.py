@@ -72,6 +72,8 @@ class LerobotPolicy:
             raise CheckpointError(f"benchmark {self.benchmark!r}: expected one of {BENCHMARKS}")
         tokenizer = options.pop("tokenizer", None)
         steps = options.pop("steps", None)
+        # The pipeline's ensemble= combines chunks itself: it needs every action of each chunk.
+        whole_chunk = options.pop("whole_chunk", None) == "1"
         if options:
             raise CheckpointError(f"unknown options {sorted(options)} for lerobot: (known: steps, tokenizer)")
         self.checkpoint = os.path.abspath(checkpoint)
@@ -119,6 +121,8 @@ class LerobotPolicy:
         self.env_pre, self.env_post = make_env_pre_post_processors(self.env_cfg, self.cfg)
         self.n_action_steps = int(steps) if steps else int(self.cfg.n_action_steps)
         chunk = int(getattr(self.cfg, "chunk_size", self.n_action_steps))
+        if whole_chunk:
+            self.n_action_steps = chunk
         if not 1 <= self.n_action_steps <= chunk:
             raise CheckpointError(f"steps={self.n_action_steps}: the checkpoint's chunks hold {chunk} actions")
         self.noise_shape = None

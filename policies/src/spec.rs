@@ -95,6 +95,7 @@ impl PythonOptions {
             options: self.policy_options.clone(),
             call_timeout: std::time::Duration::from_secs(self.call_timeout_s.unwrap_or(C::DEFAULT_CALL_TIMEOUT_S)),
             load_timeout: std::time::Duration::from_secs(self.load_timeout_s.unwrap_or(C::DEFAULT_LOAD_TIMEOUT_S)),
+            whole_chunks: self.ensemble.is_some(),
         }
     }
 

@@ -79,6 +79,10 @@ pub struct PythonHostConfig {
     /// (`load_timeout_s=`, default 1200 s: a 4 B checkpoint's hash and load on a cold disk).
     pub call_timeout: Duration,
     pub load_timeout: Duration,
+    /// `ensemble=` is set: a lerobot checkpoint answers its whole chunk (`chunk_size` actions),
+    /// not the first `n_action_steps`, so the rule sees every prediction (ACT's temporal
+    /// ensembling weighs all `chunk_size` of them).
+    pub whole_chunks: bool,
 }
 
 impl PythonHostConfig {
@@ -126,6 +130,9 @@ impl PythonHostConfig {
         let mut options = self.options.clone();
         if matches!(self.target, PythonTarget::Lerobot(_)) {
             options.push(("benchmark".into(), self.benchmark.clone()));
+            if self.whole_chunks {
+                options.push(("whole_chunk".into(), "1".into()));
+            }
         }
         for (k, v) in options {
             args.extend(["--option".to_string(), format!("{k}={v}")]);

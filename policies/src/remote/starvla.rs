@@ -26,8 +26,9 @@
 //! (open), else +1. A new query is sent every `chunk` policy steps (`step % chunk == 0`), and the
 //! reply must hold at least `chunk` actions (the reference indexes `actions[step % chunk]`).
 //!
-//! Not reproduced: HEAD's client-side `AdaptiveEnsembler` is built but never applied in its
-//! LIBERO `step`, so nothing is ensembled here either.
+//! HEAD's client-side `AdaptiveEnsembler` is built but never applied in its LIBERO `step`, so
+//! nothing is ensembled by default; `ensemble=adaptive:3:0.1` applies it (`crate::ensembling`),
+//! to the actions as the model gave them, the gripper mapped after, as starVLA's ensembler does.
 
 use super::client::{RemoteError, WsConnection};
 use super::msgpack_numpy::{self, NdArray};
@@ -459,7 +460,12 @@ impl StarVlaPolicy {
                 r.chunk
             )));
         }
-        Ok(rows.iter().map(|row| libero_action(&r.stats.as_ref().map_or(*row, |s| s.unnormalize(row)))).collect())
+        let unnormalised = rows.iter().map(|row| r.stats.as_ref().map_or(*row, |s| s.unnormalize(row)));
+        Ok(match self.chunker.ensemble() {
+            None => unnormalised.map(|row| libero_action(&row)).collect(),
+            // Ensembled as the model gave them (the gripper's open_gripper in [0, 1]), mapped after.
+            Some(_) => unnormalised.map(|row| row.map(|x| x as f32)).collect(),
+        })
     }
 }
 
@@ -484,7 +490,11 @@ impl Policy for StarVlaPolicy {
             let chunk = self.query(obs)?;
             self.chunker.push_chunk(chunk).map_err(error)?;
         }
-        Ok(self.chunker.next_action().expect("a chunk of at least `chunk` >= 1 actions was queued"))
+        let mut action = self.chunker.next_action().expect("a chunk of at least `chunk` >= 1 actions was queued");
+        if self.chunker.ensemble().is_some() {
+            action[6] = libero_gripper(f64::from(action[6]));
+        }
+        Ok(action)
     }
 }
 

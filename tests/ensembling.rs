@@ -80,11 +80,14 @@ fn ensembled_chunks_execute_what_the_reference_rules_make_of_them() {
         ("average:2", 4, ".vla-eval-venv", 0),
         ("ema:0.3:3", 4, ".vla-eval-venv", 0),
         ("temporal:0.01", 4, ".lerobot-venv", 0),
+        // ACT's own chunk length (the 12 steps use the first 12 of its 100 weights exp(-0.01 i),
+        // libm's expf against torch's)
+        ("temporal:0.01", 100, ".lerobot-venv", 0),
         // float64 in both, in a different order of operations, and equal once rounded to float32
         ("adaptive:3:0.1", 4, ".vla-eval-venv", 0),
     ];
     for (rule, size, venv, ulps) in cases {
-        let name = rule.replace([':', '.'], "-");
+        let name = format!("{}-{size}", rule.replace([':', '.'], "-"));
         let (run, stderr) = run(&d, &name, size, rule);
         let stored = stored_actions(&run);
         assert_eq!(stored.len(), STEPS, "{rule}: {stderr}");
@@ -107,7 +110,7 @@ fn ensembled_chunks_execute_what_the_reference_rules_make_of_them() {
 
     // Another rule is another identity: the resume is refused before any episode.
     let specs = d.join("specs.parquet");
-    let first = d.join("newest-3");
+    let first = d.join("newest-3-4");
     let policy = format!(
         "python:chunks:make?python={}&batch=1&size=4&ensemble=newest:2",
         venv_python(".lerobot-venv").display()

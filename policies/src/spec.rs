@@ -526,7 +526,7 @@ impl PolicySpec {
                 "kind": "diagnostic", "name": "nan-at", "step": n, "benchmark": "aloha_sim",
                 "action": "holds the first observed agent_pos, NaN at the step",
             }),
-            other => other.identity(),
+            other => other.kind_identity(),
         }
     }
 
@@ -576,7 +576,7 @@ impl PolicySpec {
                 placement_identity(&mut identity, o, "oft")?;
                 Ok(identity)
             }
-            _ => Ok(self.identity()),
+            _ => Ok(self.kind_identity()),
         }
     }
 

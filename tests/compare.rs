@@ -43,6 +43,7 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
         num_steps_wait: WAIT,
         stop_on_success: false,
         instruction_source: Default::default(),
+        realtime: None,
     };
     for &(suite, task, init, seed, outcome) in episodes {
         let key = EpisodeKey::new(suite, task, init, seed);
@@ -70,6 +71,7 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
                 policy_ms: 0.0,
                 render_ms: 0.0,
                 timing: None,
+                held: false,
             });
         }
         let summary = EpisodeSummary {

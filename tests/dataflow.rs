@@ -370,6 +370,7 @@ fn synthetic_run() -> PathBuf {
         num_steps_wait: 10,
         stop_on_success: false,
         instruction_source: Default::default(),
+        realtime: None,
     };
     let goal_at: [fn(u32) -> bool; 4] = [|p| (5..10).contains(&p), |p| p == 99, |_| false, |p| p >= 50];
     for (i, goal) in goal_at.iter().enumerate() {
@@ -398,6 +399,7 @@ fn synthetic_run() -> PathBuf {
                 policy_ms: 0.0,
                 render_ms: 0.0,
                 timing: None,
+                held: false,
             });
         }
         let summary = EpisodeSummary {
@@ -445,6 +447,7 @@ fn synthetic_run() -> PathBuf {
         substeps_per_step: 25,
         control_freq_hz: 20,
         env: libero_schema::Benchmark::Libero,
+        realtime: None,
     };
     std::fs::write(d.join("manifest.json"), serde_json::to_vec(&manifest).unwrap()).unwrap();
     d

@@ -33,6 +33,7 @@ mod pro_occlusion;
 mod pro_robustness;
 mod python_policy;
 mod readme;
+mod real_time;
 mod remote_policy;
 mod render;
 mod report;

@@ -127,6 +127,7 @@ fn run() -> PathBuf {
             num_steps_wait: WAIT,
             stop_on_success: false,
             instruction_source: Default::default(),
+            realtime: None,
         };
         for scene in ALL {
             let key = key(scene);
@@ -161,6 +162,7 @@ fn run() -> PathBuf {
                     policy_ms: 0.0,
                     render_ms: 0.0,
                     timing: None,
+                    held: false,
                 });
             }
             let summary = EpisodeSummary {

@@ -75,6 +75,7 @@ fn write_run(dir: &Path) {
         num_steps_wait: 10,
         stop_on_success: false,
         instruction_source: Default::default(),
+        realtime: None,
     };
     for (i, r) in rows().iter().enumerate() {
         let hash = format!("{i:012x}");

@@ -30,6 +30,7 @@ async fn episodes_written_to_an_object_store_url_are_listed_and_queryable() {
             num_steps_wait: 2,
             stop_on_success: false,
             instruction_source: Default::default(),
+            realtime: None,
         },
         "test".into(),
         "{}".into(),

@@ -54,8 +54,11 @@ pub fn run(args: Args) -> Result<()> {
             warn_on_baseline(policy, run_suites);
         }
         for location in &args.run {
-            let (ctx, _) = args.scoring.open_run(location).await?;
+            let (ctx, store) = args.scoring.open_run(location).await?;
             note_perturbed(&ctx).await?;
+            if let Some(manifest) = store.read_manifest().await? {
+                print_real_time(&ctx, location, &manifest).await?;
+            }
         }
         Ok(())
     })
@@ -85,6 +88,27 @@ pub async fn note_perturbed(ctx: &datafusion::prelude::SessionContext) -> Result
             );
         }
     }
+    Ok(())
+}
+
+/// For a real-time run: its setting and how much of its policy time held (`queries/real_time.sql`).
+pub async fn print_real_time(
+    ctx: &datafusion::prelude::SessionContext,
+    location: &str,
+    manifest: &libero_schema::RunManifest,
+) -> Result<()> {
+    let Some(rt) = manifest.realtime else { return Ok(()) };
+    let latency = match rt.latency {
+        libero_schema::real_time::Latency::Fixed { ms } => format!("{ms} ms per model query"),
+        libero_schema::real_time::Latency::Measured => "each policy call's measured time".to_string(),
+    };
+    println!(
+        "{location} is a real-time run: {} Hz, latency {latency}, hold {} (pipeline compare against its closed-loop run gives the drop)",
+        manifest.control_freq_hz,
+        rt.hold.name()
+    );
+    let rows = session::queries::run(ctx, session::queries::REAL_TIME).await?;
+    println!("{}", arrow::util::pretty::pretty_format_batches(&rows)?);
     Ok(())
 }
 

@@ -87,6 +87,19 @@ pub struct Args {
     /// to the cap; last-step re-scoring is then no longer possible.
     #[arg(long)]
     stop_on_success: bool,
+    /// Real-time evaluation: the env keeps its control rate (LIBERO 20 Hz, ALOHA-sim 50 Hz) while
+    /// the policy computes, and the steps its answer is late for run the hold action (--hold).
+    /// A number of milliseconds every model query takes (reproducible on any machine; a chunked
+    /// policy's queued actions take none), or `measured`: each policy call's own wall time here.
+    /// An answer of L ms runs floor(L / step period) steps after its query. Stored per step
+    /// (steps.held) and in the manifest; compare the run with its closed-loop twin.
+    #[arg(long, value_name = "MS|measured", value_parser = libero_schema::real_time::parse_latency, allow_hyphen_values = true)]
+    latency_ms: Option<libero_schema::real_time::Latency>,
+    /// What a real-time step runs while the answer is late: stay (the arm where it is, the
+    /// gripper's last command; LIBERO's default, its actions are deltas) or repeat (the last
+    /// action again; ALOHA-sim's default, its actions are absolute targets). Needs --latency-ms.
+    #[arg(long, value_name = "repeat|stay")]
+    hold: Option<libero_schema::real_time::Hold>,
     /// Parallel episodes (default: one per core).
     #[arg(long)]
     jobs: Option<usize>,
@@ -154,6 +167,17 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     if let Some(j) = args.jobs {
         rayon::ThreadPoolBuilder::new().num_threads(j.max(1)).build_global().ok();
     }
+    let realtime = match (args.latency_ms, args.hold) {
+        (Some(latency), hold) => Some(libero_schema::real_time::RealTime {
+            latency,
+            hold: hold.unwrap_or(libero_schema::real_time::Hold::default_for(benchmark)),
+        }),
+        (None, Some(hold)) => bail!(
+            "--hold {} applies to real-time runs only: add --latency-ms MS (or --latency-ms measured), or drop --hold. No episode was started.",
+            hold.name()
+        ),
+        (None, None) => None,
+    };
     let max_steps: BTreeMap<Suite, u32> =
         tasks.iter().map(|(s, _)| (*s, args.max_steps.unwrap_or_else(|| s.max_steps()))).collect();
     let aloha_max_steps = args.max_steps.unwrap_or(aloha_protocol::LEROBOT_MAX_STEPS);
@@ -163,6 +187,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         num_steps_wait: args.wait_steps,
         stop_on_success: args.stop_on_success,
         instruction_source: args.instruction,
+        realtime,
     };
     // the workers' cameras on GPUs without the model where the machine has such GPUs
     libero_sim::gl::keep_renders_off(&args.policy.model_cuda_devices());
@@ -201,6 +226,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             Benchmark::AlohaSim => aloha_protocol::CONTROL_FREQ_HZ,
         },
         env: benchmark,
+        realtime,
     };
     manifest.run_config = hex16(&Sha256::digest(manifest.config_fingerprint().as_bytes()));
 
@@ -511,6 +537,7 @@ async fn write_manifest(store: &RunStore, m: &RunManifest) -> Result<()> {
             i(m.control_freq_hz),
             s(m.instruction_source.name()),
             s(m.env.name()),
+            Arc::new(StringArray::from(vec![m.realtime.map(|rt| serde_json::to_string(&rt)).transpose()?])),
         ],
     )?;
     store.put("manifest.parquet", parquet_bytes(&batch, Some(&serde_json::to_string(m)?))?).await
@@ -518,11 +545,14 @@ async fn write_manifest(store: &RunStore, m: &RunManifest) -> Result<()> {
 
 /// After a run: the per-suite table (default scoring) and the baseline check.
 async fn print_results(location: &str, policy: &PolicySpec) -> Result<()> {
-    let (ctx, _) = session::open(location, SuccessDefinition::AnyStep, None).await?;
+    let (ctx, store) = session::open(location, SuccessDefinition::AnyStep, None).await?;
     let batches = session::queries::run(&ctx, session::queries::RESULTS).await?;
     println!("{}", arrow::util::pretty::pretty_format_batches(&batches)?);
     crate::results::warn_on_baseline(policy, &batches);
     crate::results::note_perturbed(&ctx).await?;
+    if let Some(manifest) = store.read_manifest().await? {
+        crate::results::print_real_time(&ctx, location, &manifest).await?;
+    }
     if crate::generalisation::has_plus_rows(&ctx).await? {
         let (_, summary) = crate::generalisation::tables(&ctx).await?;
         println!("LIBERO-Plus by category (pipeline generalisation --run {location} for every cell):");

@@ -99,6 +99,7 @@ pub mod queries {
     pub const GENERALISATION: &str = "generalisation";
     pub const GENERALISATION_SUMMARY: &str = "generalisation_summary";
     pub const PRO_ROBUSTNESS_CASES: &str = "pro_robustness_cases";
+    pub const REAL_TIME: &str = "real_time";
 
     const COMPILED: &[(&str, &str)] = &[
         (SCORE, include_str!("../../queries/score.sql")),
@@ -121,6 +122,7 @@ pub mod queries {
         (GENERALISATION, include_str!("../../queries/generalisation.sql")),
         (GENERALISATION_SUMMARY, include_str!("../../queries/generalisation_summary.sql")),
         (PRO_ROBUSTNESS_CASES, include_str!("../../queries/pro_robustness_cases.sql")),
+        (REAL_TIME, include_str!("../../queries/real_time.sql")),
     ];
 
     /// The text of `queries/<name>.sql`: from `$LIBERO_QUERIES` when set, else compiled in.

@@ -54,6 +54,10 @@ pub trait AlohaPolicy: Send {
     fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
         Err(format!("ensemble={ensemble}: this policy predicts no action chunks"))
     }
+    /// As [`crate::Policy::queries_model`].
+    fn queries_model(&self) -> bool {
+        true
+    }
 }
 
 /// The positive control: ACT's scripted policy as the env recorded it for this episode's objects.

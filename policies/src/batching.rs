@@ -423,6 +423,10 @@ impl Policy for BatchedPolicy {
         Ok(())
     }
 
+    fn queries_model(&self) -> bool {
+        self.chunker.needs_query()
+    }
+
     fn reset(&mut self, instruction: &str, episode_seed: u64) {
         self.instruction = instruction.to_string();
         self.episode_seed = episode_seed;

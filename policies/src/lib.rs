@@ -171,4 +171,10 @@ pub trait Policy: Send {
     fn set_ensemble(&mut self, ensemble: ensembling::Ensemble) -> Result<(), String> {
         Err(format!("ensemble={ensemble}: this policy predicts no action chunks"))
     }
+    /// Whether the next `act` runs the model (asked before it): a real-time run with a fixed
+    /// latency charges it to these calls only. A chunked policy with queued actions answers
+    /// false; a policy that computes every step (the default), true.
+    fn queries_model(&self) -> bool {
+        true
+    }
 }

@@ -36,6 +36,11 @@ pub struct RunManifest {
     /// `benchmark` column (LIBERO-Plus, LIBERO-PRO robustness) names the protocol of its rows.
     #[serde(default = "libero")]
     pub env: crate::Benchmark,
+    /// Real-time evaluation (`pipeline run --latency-ms`): the latency model and the hold action;
+    /// absent for a closed-loop run (the env waits for every answer), as in every run before
+    /// tables v8.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub realtime: Option<crate::real_time::RealTime>,
 }
 
 fn libero() -> crate::Benchmark {
@@ -50,7 +55,7 @@ impl RunManifest {
     /// The canonical text of what changes the steps; `run_config` is its hash. Creation time and
     /// git revision are provenance, not configuration.
     pub fn config_fingerprint(&self) -> String {
-        serde_json::json!({
+        let mut config = serde_json::json!({
             "tables_version": self.tables_version,
             "mujoco_version": self.mujoco_version,
             "bundle_format_version": self.bundle_format_version,
@@ -64,8 +69,12 @@ impl RunManifest {
             "substeps_per_step": self.substeps_per_step,
             "control_freq_hz": self.control_freq_hz,
             "env": self.env,
-        })
-        .to_string()
+        });
+        // only when set, so a closed-loop run's hash is what it was before the setting existed
+        if let Some(rt) = &self.realtime {
+            config["realtime"] = serde_json::json!(rt);
+        }
+        config.to_string()
     }
 
     /// Fields whose values differ between two manifests' configurations, for a resume error.
@@ -77,9 +86,11 @@ impl RunManifest {
         let (Some(a), Some(b)) = (a.as_object(), b.as_object()) else {
             return vec![];
         };
-        a.iter()
-            .filter(|(k, v)| b.get(*k) != Some(v))
-            .map(|(k, v)| format!("{k}: stored {} vs now {}", b.get(k).cloned().unwrap_or_default(), v))
+        let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+        let shown = |v: Option<&serde_json::Value>| v.map_or("(none)".to_string(), |v| v.to_string());
+        keys.into_iter()
+            .filter(|k| a.get(*k) != b.get(*k))
+            .map(|k| format!("{k}: stored {} vs now {}", shown(b.get(k)), shown(a.get(k))))
             .collect()
     }
 }

@@ -19,7 +19,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, LazyLock};
 
 /// Version of the step/episode/manifest layout; stored in every manifest and part.
-pub const TABLES_VERSION: u32 = 7;
+pub const TABLES_VERSION: u32 = 8;
 /// Arrow field-metadata key holding a field's documentation.
 pub const DOC_KEY: &str = "doc";
 /// Parquet key-value metadata key holding the run manifest (JSON) in every part.
@@ -120,6 +120,7 @@ pub fn steps() -> SchemaRef {
             ),
         ]);
         f.extend(step_timing_fields());
+        f.push(held_field());
         Arc::new(Schema::new(f))
     });
     S.clone()
@@ -164,6 +165,16 @@ fn step_timing_fields() -> Vec<Field> {
     ]
 }
 
+/// Whether a step's action was the real-time hold: the same column for every benchmark.
+fn held_field() -> Field {
+    field(
+        "held",
+        DataType::Boolean,
+        true,
+        "real-time runs (manifest.realtime): the step commanded the hold action because the policy's answer had not arrived (its query's latency spans this step); false where the policy's own action ran, and in closed-loop runs; null in runs before tables v8",
+    )
+}
+
 /// One row per env step of an ALOHA-sim episode (gym-aloha's joint-space tasks; no wait steps).
 pub fn aloha_steps() -> SchemaRef {
     static S: LazyLock<SchemaRef> = LazyLock::new(|| {
@@ -199,6 +210,7 @@ pub fn aloha_steps() -> SchemaRef {
             ),
         ]);
         f.extend(step_timing_fields());
+        f.push(held_field());
         Arc::new(Schema::new(f))
     });
     S.clone()
@@ -357,6 +369,12 @@ pub fn manifest() -> SchemaRef {
                 DataType::Utf8,
                 true,
                 "the simulated benchmark of the run: libero or aloha_sim (which steps table its parts hold); null in runs before tables v7 (LIBERO)",
+            ),
+            field(
+                "realtime",
+                DataType::Utf8,
+                true,
+                "real-time evaluation (JSON: latency fixed ms or measured, hold repeat|stay); null for a closed-loop run, where the env waits for every answer",
             ),
         ]))
     });

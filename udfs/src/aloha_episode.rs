@@ -9,11 +9,13 @@
 
 use crate::episode::{EpisodeError, EpisodeProtocol, EpisodeSummary};
 use crate::goal_evidence::GoalChanges;
+use crate::real_time::{RealTimeClock, Tick, aloha_hold};
 use crate::steps_batch::{EpisodeKey, fixed_f32, fixed_f64, object_poses_column, timing_columns};
 use arrow::array::{ArrayRef, BooleanArray, Int32Array, RecordBatch};
 use arrow::error::ArrowError;
 use libero_policies::aloha::{AlohaAction, AlohaObservation, AlohaPolicy};
 use libero_policies::{CameraImage, PolicyError};
+use libero_schema::benchmark::aloha as aloha_protocol;
 use libero_schema::tables;
 use libero_sim::SimError;
 use libero_sim::aloha::{AlohaBundle, AlohaEnv, AlohaTask, MAX_REWARD, ScriptRecorder};
@@ -128,35 +130,71 @@ pub fn run_aloha_episode(
     };
     // the joints after step t are what the policy sees before step t + 1: read them once a step
     let mut agent_pos = worker.env.agent_pos();
+    let mut clock: Option<RealTimeClock<AlohaAction, QueryCost>> =
+        protocol.realtime.map(|rt| RealTimeClock::new(rt, aloha_protocol::CONTROL_FREQ_HZ as u32));
+    // the last policy action the env ran (what a real-time hold repeats or keeps the grippers of)
+    let mut last_action: Option<AlohaAction> = None;
     for p in 0..protocol.max_steps {
-        let mut render_ms = 0.0;
-        let top = if policy.wants_top_camera() {
-            let t0 = Instant::now();
-            let top = worker.render_top();
-            render_ms = t0.elapsed().as_secs_f32() * 1e3;
-            summary.render_s += render_ms as f64 / 1e3;
-            match top {
-                Ok(top) => Some(top),
-                Err(e) => {
-                    summary.error = Some(EpisodeError::from_sim(&e));
-                    break;
+        let mut cost = QueryCost::default();
+        let mut held = false;
+        let action = match clock.as_mut().map_or(Tick::Query, RealTimeClock::tick) {
+            Tick::Hold => {
+                held = true;
+                aloha_hold(protocol.realtime.expect("a clock is real time").hold, last_action.as_ref(), &agent_pos)
+            }
+            Tick::Answer(a, answer_cost) => {
+                cost = answer_cost;
+                a
+            }
+            Tick::Query => {
+                let queries_model = policy.queries_model();
+                let top = if policy.wants_top_camera() {
+                    let t0 = Instant::now();
+                    let top = worker.render_top();
+                    cost.render_ms = t0.elapsed().as_secs_f32() * 1e3;
+                    summary.render_s += cost.render_ms as f64 / 1e3;
+                    match top {
+                        Ok(top) => Some(top),
+                        Err(e) => {
+                            summary.error = Some(EpisodeError::from_sim(&e));
+                            break;
+                        }
+                    }
+                } else {
+                    None
+                };
+                let obs = AlohaObservation { policy_step: p, agent_pos, top, script: script.clone() };
+                let t0 = Instant::now();
+                let action: Result<AlohaAction, PolicyError> = policy.act(&obs);
+                cost.policy_ms = t0.elapsed().as_secs_f32() * 1e3;
+                summary.policy_s += cost.policy_ms as f64 / 1e3;
+                let action = match action {
+                    Ok(a) => a,
+                    Err(e) => {
+                        summary.error = Some(EpisodeError { kind: "policy", message: e.to_string() });
+                        break;
+                    }
+                };
+                match clock.as_mut() {
+                    None => action,
+                    Some(c) => {
+                        let latency = c.latency_ms(queries_model, cost.policy_ms as f64);
+                        match c.answered(action, cost, latency) {
+                            Some((a, _)) => a,
+                            // late: this step holds, and the query's cost goes with the answer's step
+                            None => {
+                                held = true;
+                                cost = QueryCost::default();
+                                aloha_hold(c.hold(), last_action.as_ref(), &agent_pos)
+                            }
+                        }
+                    }
                 }
             }
-        } else {
-            None
         };
-        let obs = AlohaObservation { policy_step: p, agent_pos, top, script: script.clone() };
-        let t0 = Instant::now();
-        let action: Result<AlohaAction, PolicyError> = policy.act(&obs);
-        let policy_ms = t0.elapsed().as_secs_f32() * 1e3;
-        summary.policy_s += policy_ms as f64 / 1e3;
-        let action = match action {
-            Ok(a) => a,
-            Err(e) => {
-                summary.error = Some(EpisodeError { kind: "policy", message: e.to_string() });
-                break;
-            }
-        };
+        if !held {
+            last_action = Some(action);
+        }
         let t0 = Instant::now();
         let reward = worker.env.step(&action);
         let sim_ms = t0.elapsed().as_secs_f32() * 1e3;
@@ -170,7 +208,7 @@ pub fn run_aloha_episode(
         };
         let goal = reward == MAX_REWARD;
         agent_pos = worker.env.agent_pos();
-        let timing = StepTiming { sim_ms, policy_ms, render_ms };
+        let timing = StepTiming { sim_ms, policy_ms: cost.policy_ms, render_ms: cost.render_ms, held };
         steps.push(p as i32, &action, &agent_pos, &worker.env.qpos()[16..], goal, reward, timing);
         summary.n_policy_steps = p + 1;
         summary.final_goal = goal;
@@ -200,13 +238,23 @@ struct AlohaStepsBuilder {
     sim_ms: Vec<f32>,
     policy_ms: Vec<f32>,
     render_ms: Vec<f32>,
+    held: Vec<bool>,
 }
 
-/// Where one step's time went (ms): the env, the policy, rendering its camera.
+/// Where one step's time went (ms): the env, the policy, rendering its camera; and whether it
+/// was a real-time hold.
 struct StepTiming {
     sim_ms: f32,
     policy_ms: f32,
     render_ms: f32,
+    held: bool,
+}
+
+/// What a policy query cost (ms): its camera render and its `act` call.
+#[derive(Debug, Clone, Copy, Default)]
+struct QueryCost {
+    render_ms: f32,
+    policy_ms: f32,
 }
 
 impl AlohaStepsBuilder {
@@ -224,6 +272,7 @@ impl AlohaStepsBuilder {
             sim_ms: vec![],
             policy_ms: vec![],
             render_ms: vec![],
+            held: vec![],
         }
     }
 
@@ -251,6 +300,7 @@ impl AlohaStepsBuilder {
         self.sim_ms.push(timing.sim_ms);
         self.policy_ms.push(timing.policy_ms);
         self.render_ms.push(timing.render_ms);
+        self.held.push(timing.held);
     }
 
     fn finish(self) -> Result<RecordBatch, ArrowError> {
@@ -269,6 +319,7 @@ impl AlohaStepsBuilder {
         ]);
         // no ALOHA policy reports model timings (a forward's split) yet
         columns.extend(timing_columns(self.sim_ms, self.policy_ms, self.render_ms, &vec![None; n]));
+        columns.push(Arc::new(BooleanArray::from(self.held)));
         RecordBatch::try_new(tables::aloha_steps(), columns)
     }
 }

@@ -10,13 +10,15 @@
 use crate::goal_evidence::GoalChanges;
 use crate::perturbation::EpisodePerturbation;
 use crate::policy_cameras::PolicyCameras;
+use crate::real_time::{RealTimeClock, Tick, libero_hold};
 use crate::scene_view::SceneReader;
 use crate::steps_batch::{EpisodeKey, StepRecord, StepsBatchBuilder};
 use arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, RecordBatch, StringArray};
 use arrow::buffer::OffsetBuffer;
 use arrow::datatypes::{DataType, Field};
 use libero_policies::{Observation, Policy};
-use libero_schema::protocol::WAIT_ACTION;
+use libero_schema::protocol::{CONTROL_FREQ_HZ, WAIT_ACTION};
+use libero_schema::real_time::RealTime;
 use libero_schema::{Benchmark, InstructionSource, Suite, tables};
 use libero_sim::SimError;
 use libero_sim::env::LiberoEnv;
@@ -32,6 +34,8 @@ pub struct EpisodeProtocol {
     pub stop_on_success: bool,
     /// Which of the task's instruction texts the policy gets.
     pub instruction_source: InstructionSource,
+    /// Real-time evaluation: latency and hold ([`crate::real_time`]); None for closed loop.
+    pub realtime: Option<RealTime>,
 }
 
 /// Why an episode ended early; stored as `error_kind` / `error`.
@@ -135,6 +139,15 @@ pub fn start_sha256(bundle: &libero_sim::bundle::TaskBundle, key: &EpisodeKey) -
     Ok(format!("{:x}", h.finalize()))
 }
 
+/// What a policy query cost, as its step stores it: the render, the `act` call, the model's own
+/// timing. Under a real-time clock it travels with the answer to the step that applies it.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct QueryCost {
+    pub render_ms: f32,
+    pub policy_ms: f32,
+    pub timing: Option<libero_policies::ActTiming>,
+}
+
 /// Run one episode on `env` (already built for the key's task) with `policy`, perturbed as the
 /// spec row says (`EpisodePerturbation::default()` for none). `cameras` is the env's renderer for
 /// policies that see, made on the first step that asks and kept by the caller for the task's
@@ -201,78 +214,112 @@ pub fn run_episode(
     let mut obs = env.observation();
     let mut contacts = env.gripper_contacts();
     let total = protocol.num_steps_wait + protocol.max_steps;
+    let mut clock: Option<RealTimeClock<[f32; 7], QueryCost>> =
+        protocol.realtime.map(|rt| RealTimeClock::new(rt, CONTROL_FREQ_HZ));
+    // the last policy action the env ran (what a real-time hold repeats or keeps the gripper of)
+    let mut last_action: Option<[f32; 7]> = None;
     for t in 0..total {
         let policy_step = t.checked_sub(protocol.num_steps_wait);
-        let (mut policy_ms, mut render_ms, mut timing) = (0.0f32, 0.0f32, None);
+        let mut cost = QueryCost::default();
+        let mut held = false;
         let action: [f32; 7] = match policy_step {
             None => WAIT_ACTION,
-            Some(p) => {
-                let t0 = Instant::now();
-                let images = match policy.camera_size() {
-                    None => None,
-                    Some(size) => match capture(cameras, env, size, policy.wants_wrist_camera()) {
-                        Ok(mut images) => {
-                            if let Some(noise) = &perturbation.sensor_noise {
-                                let mut draws = SeededDraws::new(noise_seed(key, p));
-                                let a = &mut images.agentview;
-                                if let Err(e) = noise.apply(&mut a.rgb, a.width as usize, a.height as usize, &mut draws)
-                                {
-                                    summary.error = Some(EpisodeError { kind: "perturbation", message: e });
-                                    break;
-                                }
-                            }
-                            if let Some(dark) = &perturbation.dark_noise {
-                                for (i, image) in [&mut images.agentview, &mut images.wrist].into_iter().enumerate() {
-                                    if image.rgb.is_empty() {
-                                        continue;
+            Some(p) => match clock.as_mut().map_or(Tick::Query, RealTimeClock::tick) {
+                Tick::Hold => {
+                    held = true;
+                    libero_hold(protocol.realtime.expect("a clock is real time").hold, last_action.as_ref())
+                }
+                Tick::Answer(a, answer_cost) => {
+                    cost = answer_cost;
+                    a
+                }
+                Tick::Query => {
+                    let queries_model = policy.queries_model();
+                    let answer = 'query: {
+                        let t0 = Instant::now();
+                        let images = match policy.camera_size() {
+                            None => None,
+                            Some(size) => match capture(cameras, env, size, policy.wants_wrist_camera()) {
+                                Ok(mut images) => {
+                                    if let Some(noise) = &perturbation.sensor_noise {
+                                        let mut draws = SeededDraws::new(noise_seed(key, p));
+                                        let a = &mut images.agentview;
+                                        if let Err(e) =
+                                            noise.apply(&mut a.rgb, a.width as usize, a.height as usize, &mut draws)
+                                        {
+                                            break 'query Err(EpisodeError { kind: "perturbation", message: e });
+                                        }
                                     }
-                                    let field = dark_fields[i]
-                                        .get_or_insert_with(|| dark.field(dark_noise_seed(key, i), image.rgb.len()));
-                                    if let Err(e) = dark.apply(&mut image.rgb, field) {
-                                        summary.error = Some(EpisodeError { kind: "perturbation", message: e });
+                                    if let Some(dark) = &perturbation.dark_noise {
+                                        for (i, image) in
+                                            [&mut images.agentview, &mut images.wrist].into_iter().enumerate()
+                                        {
+                                            if image.rgb.is_empty() {
+                                                continue;
+                                            }
+                                            let field = dark_fields[i].get_or_insert_with(|| {
+                                                dark.field(dark_noise_seed(key, i), image.rgb.len())
+                                            });
+                                            if let Err(e) = dark.apply(&mut image.rgb, field) {
+                                                break 'query Err(EpisodeError { kind: "perturbation", message: e });
+                                            }
+                                        }
                                     }
+                                    Some(images)
                                 }
-                                if summary.error.is_some() {
-                                    break;
-                                }
-                            }
-                            Some(images)
-                        }
+                                Err(e) => break 'query Err(EpisodeError::from_sim(&e)),
+                            },
+                        };
+                        cost.render_ms = t0.elapsed().as_secs_f32() * 1e3;
+                        summary.render_s += cost.render_ms as f64 / 1e3;
+                        let input = Observation {
+                            policy_step: p,
+                            eef_pos: obs.eef_pos,
+                            eef_quat: obs.eef_quat,
+                            hand_quat: obs.hand_quat,
+                            gripper_qpos: obs.gripper_qpos,
+                            gripper_qvel: obs.gripper_qvel,
+                            eef_mat: obs.eef_mat,
+                            joint_pos: obs.joint_pos,
+                            joint_vel: obs.joint_vel,
+                            scene: scene.as_ref().map(|r| r.read(env, &goal, &contacts)),
+                            images,
+                        };
+                        let t0 = Instant::now();
+                        let a = policy.act(&input);
+                        cost.policy_ms = t0.elapsed().as_secs_f32() * 1e3;
+                        cost.timing = policy.last_timing();
+                        summary.policy_s += cost.policy_ms as f64 / 1e3;
+                        a.map_err(|e| EpisodeError { kind: "policy", message: e.to_string() })
+                    };
+                    let a = match answer {
+                        Ok(a) => a,
                         Err(e) => {
-                            summary.error = Some(EpisodeError::from_sim(&e));
+                            summary.error = Some(e);
                             break;
                         }
-                    },
-                };
-                render_ms = t0.elapsed().as_secs_f32() * 1e3;
-                summary.render_s += render_ms as f64 / 1e3;
-                let input = Observation {
-                    policy_step: p,
-                    eef_pos: obs.eef_pos,
-                    eef_quat: obs.eef_quat,
-                    hand_quat: obs.hand_quat,
-                    gripper_qpos: obs.gripper_qpos,
-                    gripper_qvel: obs.gripper_qvel,
-                    eef_mat: obs.eef_mat,
-                    joint_pos: obs.joint_pos,
-                    joint_vel: obs.joint_vel,
-                    scene: scene.as_ref().map(|r| r.read(env, &goal, &contacts)),
-                    images,
-                };
-                let t0 = Instant::now();
-                let a = policy.act(&input);
-                policy_ms = t0.elapsed().as_secs_f32() * 1e3;
-                timing = policy.last_timing();
-                summary.policy_s += policy_ms as f64 / 1e3;
-                match a {
-                    Ok(a) => a,
-                    Err(e) => {
-                        summary.error = Some(EpisodeError { kind: "policy", message: e.to_string() });
-                        break;
+                    };
+                    match clock.as_mut() {
+                        None => a,
+                        Some(c) => {
+                            let latency = c.latency_ms(queries_model, cost.policy_ms as f64);
+                            match c.answered(a, cost, latency) {
+                                Some((a, _)) => a,
+                                // late: this step holds, and the query's cost goes with the answer's step
+                                None => {
+                                    held = true;
+                                    cost = QueryCost::default();
+                                    libero_hold(c.hold(), last_action.as_ref())
+                                }
+                            }
+                        }
                     }
                 }
-            }
+            },
         };
+        if policy_step.is_some() && !held {
+            last_action = Some(action);
+        }
         let t0 = Instant::now();
         let out = env.step(action.map(f64::from));
         let sim_ms = t0.elapsed().as_secs_f32() * 1e3;
@@ -300,9 +347,10 @@ pub fn run_episode(
             goal_terms: &out.goal.terms,
             gripper_contacts: &contacts,
             sim_ms,
-            policy_ms,
-            render_ms,
-            timing,
+            policy_ms: cost.policy_ms,
+            render_ms: cost.render_ms,
+            timing: cost.timing,
+            held,
         });
         goal = out.goal;
         if let Some(p) = policy_step {

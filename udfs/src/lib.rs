@@ -16,7 +16,8 @@
 //! - [`goal_evidence`]: the goal's changes per episode (compact re-scoring evidence) and
 //!   `goal_held_at(goal_changes, step)`;
 //! - [`scene_view`] / [`policy_cameras`]: what a policy may see besides proprio: the privileged
-//!   scene (scripted experts) and the two cameras (learned policies).
+//!   scene (scripted experts) and the two cameras (learned policies);
+//! - [`real_time`]: an episode's real-time clock (`pipeline run --latency-ms`) and the hold actions.
 //!
 //! The only crate besides `pipeline` that joins `sim` and `policies`.
 
@@ -28,6 +29,7 @@ pub mod mcnemar;
 pub mod newcombe;
 pub mod perturbation;
 pub mod policy_cameras;
+pub mod real_time;
 pub mod rollout;
 pub mod run_store;
 pub mod sample_size;

@@ -71,6 +71,8 @@ pub struct RunProtocol {
     pub num_steps_wait: u32,
     pub stop_on_success: bool,
     pub instruction_source: libero_schema::InstructionSource,
+    /// Real-time evaluation (`--latency-ms`); None: the env waits for every answer.
+    pub realtime: Option<libero_schema::real_time::RealTime>,
 }
 
 impl RunProtocol {
@@ -81,6 +83,7 @@ impl RunProtocol {
             num_steps_wait: 0,
             stop_on_success: self.stop_on_success,
             instruction_source: self.instruction_source,
+            realtime: self.realtime,
         }
     }
 
@@ -90,6 +93,7 @@ impl RunProtocol {
             num_steps_wait: self.num_steps_wait,
             stop_on_success: self.stop_on_success,
             instruction_source: self.instruction_source,
+            realtime: self.realtime,
         }
     }
 }

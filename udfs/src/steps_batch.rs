@@ -83,6 +83,8 @@ pub struct StepRecord<'a> {
     pub render_ms: f32,
     /// The model timing behind `policy_ms`, where the policy reports one.
     pub timing: Option<libero_policies::ActTiming>,
+    /// A real-time hold: the policy's answer had not arrived ([`crate::real_time`]).
+    pub held: bool,
 }
 
 /// Column buffers for one episode's steps.
@@ -107,6 +109,7 @@ pub struct StepsBatchBuilder {
     policy_ms: Vec<f32>,
     render_ms: Vec<f32>,
     timing: Vec<Option<libero_policies::ActTiming>>,
+    held: Vec<bool>,
 }
 
 impl StepsBatchBuilder {
@@ -132,6 +135,7 @@ impl StepsBatchBuilder {
             policy_ms: vec![],
             render_ms: vec![],
             timing: vec![],
+            held: vec![],
         }
     }
 
@@ -165,6 +169,7 @@ impl StepsBatchBuilder {
         self.policy_ms.push(r.policy_ms);
         self.render_ms.push(r.render_ms);
         self.timing.push(r.timing);
+        self.held.push(r.held);
     }
 
     pub fn finish(self) -> Result<RecordBatch, ArrowError> {
@@ -188,6 +193,7 @@ impl StepsBatchBuilder {
             list(DataType::Utf8, Arc::new(contacts), self.contacts_len)?,
         ]);
         columns.extend(timing_columns(self.sim_ms, self.policy_ms, self.render_ms, &self.timing));
+        columns.push(Arc::new(BooleanArray::from(self.held)));
         RecordBatch::try_new(tables::steps(), columns)
     }
 }
@@ -281,6 +287,7 @@ mod tests {
                 policy_ms: 0.0,
                 render_ms: 0.0,
                 timing: None,
+                held: false,
             });
         }
         let batch = b.finish().unwrap();

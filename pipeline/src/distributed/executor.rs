@@ -140,6 +140,7 @@ impl ExecutorRuns {
             num_steps_wait: manifest.num_steps_wait as u32,
             stop_on_success: manifest.stop_on_success,
             instruction_source: manifest.instruction_source,
+            realtime: manifest.realtime,
         };
         let store = self.io.block_on(RunStore::connect(&run.location))?;
         Ok(RolloutContext::new(
@@ -260,6 +261,7 @@ mod tests {
             substeps_per_step: 25,
             control_freq_hz: 20,
             env: libero_schema::Benchmark::Libero,
+            realtime: None,
         };
         check_same_build(&manifest, &bundles, &tasks).unwrap();
         let other = RunManifest {

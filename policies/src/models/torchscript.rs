@@ -392,6 +392,10 @@ impl Policy for TorchScriptPolicy {
         Ok(())
     }
 
+    fn queries_model(&self) -> bool {
+        self.chunker.needs_query()
+    }
+
     fn reset(&mut self, _instruction: &str, _episode_seed: u64) {
         self.chunker.reset();
     }

@@ -323,6 +323,10 @@ impl Policy for OpenpiPolicy {
         Ok(())
     }
 
+    fn queries_model(&self) -> bool {
+        self.chunker.needs_query()
+    }
+
     fn reset(&mut self, instruction: &str, _episode_seed: u64) {
         self.prompt = instruction.to_string();
         self.chunker.reset();

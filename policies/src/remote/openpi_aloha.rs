@@ -112,6 +112,10 @@ impl AlohaPolicy for OpenpiAlohaPolicy {
         Ok(())
     }
 
+    fn queries_model(&self) -> bool {
+        self.chunker.needs_query()
+    }
+
     fn reset(&mut self, _episode_seed: u64) {
         self.chunker.reset();
     }

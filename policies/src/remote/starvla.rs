@@ -475,6 +475,10 @@ impl Policy for StarVlaPolicy {
         Ok(())
     }
 
+    fn queries_model(&self) -> bool {
+        self.chunker.needs_query()
+    }
+
     fn reset(&mut self, instruction: &str, _episode_seed: u64) {
         self.instruction = instruction.to_string();
         self.chunker.reset();

@@ -17,6 +17,7 @@ mod doctor;
 mod ensembling;
 mod env;
 mod expert;
+mod export;
 mod failure_modes;
 mod generalisation;
 mod libero_plus;

@@ -14,8 +14,10 @@ mod compare;
 mod distributed;
 mod doctor;
 mod engine;
+mod export;
 mod failures;
 mod generalisation;
+mod lerobot_dataset;
 mod libero_plus;
 mod libero_pro_robustness;
 mod media;
@@ -182,6 +184,15 @@ enum Command {
     /// embeds.
     #[command(after_help = video::VIDEOS_EXAMPLES)]
     Videos(video::SelectedArgs),
+    /// A run's episodes (its failures by default) as a LeRobotDataset training code reads.
+    ///
+    /// Replays each chosen episode's stored actions as `pipeline video` does (checking every step
+    /// against the stored one) and writes lerobot 0.6.1's dataset layout (v3.0) to --out: Parquet
+    /// frames (state, action, next.success, next.done), an MP4 per camera and episode, meta/info.json,
+    /// stats.json, tasks and episodes, and meta/libero_eval.json (which run and episode each came
+    /// from). Nothing is written unless every episode replays.
+    #[command(after_help = export::EXAMPLES)]
+    Export(export::Args),
     /// Ballista scheduler with our functions (for `--engine ballista://HOST:PORT`).
     ///
     /// Runs until stopped. Executors (`pipeline executor`) register with it and commands given
@@ -243,6 +254,7 @@ fn main() -> anyhow::Result<()> {
         Command::Smoke(args) => smoke::run(&bundles()?, args),
         Command::Video(args) => video::run(&bundles()?, args),
         Command::Videos(args) => video::run_selected(&bundles()?, args),
+        Command::Export(args) => export::run(&bundles()?, args),
         #[cfg(feature = "distributed")]
         Command::Scheduler(args) => distributed::scheduler::run(args),
         #[cfg(feature = "distributed")]

@@ -93,26 +93,26 @@ pub struct RenderArgs {
 }
 
 /// One stored episode: what the replay needs and what the final card says.
-struct StoredEpisode {
-    key: String,
-    suite: String,
-    task_id: u32,
-    init_state_id: usize,
-    seed: u64,
-    instruction: String,
-    success: Option<bool>,
+pub(crate) struct StoredEpisode {
+    pub(crate) key: String,
+    pub(crate) suite: String,
+    pub(crate) task_id: u32,
+    pub(crate) init_state_id: usize,
+    pub(crate) seed: u64,
+    pub(crate) instruction: String,
+    pub(crate) success: Option<bool>,
     /// The primary failure mode (`queries/failure_modes.sql`) under the chosen scoring.
-    failure_mode: Option<String>,
-    n_policy_steps: i32,
-    error: Option<String>,
-    goals: Vec<bool>,
-    steps: StoredSteps,
+    pub(crate) failure_mode: Option<String>,
+    pub(crate) n_policy_steps: i32,
+    pub(crate) error: Option<String>,
+    pub(crate) goals: Vec<bool>,
+    pub(crate) steps: StoredSteps,
 }
 
 /// A stored episode's steps as its benchmark's replay needs them.
 // one value per replayed episode, beside its steps' vectors: the variants' sizes do not matter
 #[allow(clippy::large_enum_variant)]
-enum StoredSteps {
+pub(crate) enum StoredSteps {
     Libero {
         /// What the episode's spec row perturbed (`episodes.perturbation_params`), re-applied.
         perturbation: EpisodePerturbation,
@@ -135,23 +135,23 @@ impl StoredEpisode {
 }
 
 /// The bundles replays need, opened when an episode of their benchmark first asks.
-struct ReplayBundles {
+pub(crate) struct ReplayBundles {
     libero_dir: PathBuf,
     libero: Option<BundleSet>,
     aloha: Option<AlohaBundle>,
 }
 
 impl ReplayBundles {
-    fn new(libero_dir: &Path) -> Self {
+    pub(crate) fn new(libero_dir: &Path) -> Self {
         ReplayBundles { libero_dir: libero_dir.to_path_buf(), libero: None, aloha: None }
     }
-    fn libero(&mut self) -> Result<&BundleSet> {
+    pub(crate) fn libero(&mut self) -> Result<&BundleSet> {
         if self.libero.is_none() {
             self.libero = Some(BundleSet::open(&self.libero_dir)?);
         }
         Ok(self.libero.as_ref().expect("opened above"))
     }
-    fn aloha(&mut self) -> Result<&AlohaBundle> {
+    pub(crate) fn aloha(&mut self) -> Result<&AlohaBundle> {
         if self.aloha.is_none() {
             self.aloha = Some(AlohaBundle::open(crate::bundles_location::resolve_aloha(None))?);
         }
@@ -465,7 +465,7 @@ fn yes_no(b: bool) -> &'static str {
 }
 
 /// The stored episodes `keys` of the run open in `ctx` (`run` names it in errors).
-async fn load_episodes(
+pub(crate) async fn load_episodes(
     ctx: &datafusion::prelude::SessionContext,
     run: &str,
     keys: &[String],

@@ -81,6 +81,17 @@ fn libero_failures_export_as_a_dataset_lerobot_reads_back_as_the_policy_saw_them
         serde_json::from_str(&std::fs::read_to_string(exact.join("meta/libero_eval.json")).unwrap()).unwrap();
     assert_eq!(provenance["episodes"][0]["episode_key"], "libero_spatial/0/0/7");
 
+    // --cap 5: the episodes as that scoring sees them, 5 frames each, the fifth the last
+    let capped = d.join("capped");
+    let c = capped.to_str().unwrap();
+    ok(pipeline(&["export", r, "--out", c, "--video", "lossless", "--camera-size", "64", "--cap", "5"]));
+    let v = check(&capped, &run, Some(&record), &d);
+    assert_eq!(
+        (&v["frames"], &v["done"], &v["max_image_diff"]),
+        (&serde_json::json!([5, 5]), &serde_json::json!(2), &serde_json::json!(0)),
+        "{v}"
+    );
+
     // the default H.264: a predicate picks one episode; pixels within the codec's error
     let lossy = d.join("lossy");
     ok(pipeline(&["export", r, "--out", lossy.to_str().unwrap(), "--camera-size", "64", "--where", "task_id = 1"]));
@@ -129,4 +140,51 @@ fn an_aloha_sim_run_exports_its_joints_actions_and_rewards() {
     assert_eq!(v["max_state_diff"].as_f64(), Some(0.0), "agent_pos before each step: {v}");
     assert_eq!(v["max_reward_diff"].as_f64(), Some(0.0), "{v}");
     assert_eq!(v["tasks"].as_array().unwrap().len(), 2, "{v}");
+}
+
+#[test]
+fn an_episode_that_cannot_be_replayed_stops_the_export_and_writes_nothing() {
+    let d = test_dir("export", "unreplayable");
+    let specs = d.join("specs.parquet");
+    let s = specs.to_str().unwrap();
+    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0", "--trials", "2", "-o", s]));
+    let run = |name: &str, policy: &str| {
+        let out = d.join(name);
+        ok(pipeline(&["run", s, "--out", out.to_str().unwrap(), "--policy", policy, "--max-steps", "6"]));
+        out
+    };
+    let never = d.join("never");
+    let refused = |run: &Path, extra: &[&str], needle: &str| {
+        let mut args = vec!["export", run.to_str().unwrap(), "--out", never.to_str().unwrap(), "--camera-size", "64"];
+        args.extend(extra);
+        let out = pipeline(&args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(needle), "{extra:?}: {err}");
+        assert!(!never.exists(), "{extra:?} wrote {}", never.display());
+    };
+    // NaN at the first policy step: every episode is an error row with no step to replay; the
+    // default (failures with a policy step) matches none, and asking for them names the episode
+    let nan = run("nan", "nan-at:0");
+    refused(&nan, &[], "matches no episode");
+    refused(&nan, &["--where", "true"], "has no policy step to replay");
+    // NaN at policy step 3: the 3 steps before the error are the episode's frames
+    let nan3 = run("nan3", "nan-at:3");
+    let dataset = d.join("nan3-dataset");
+    ok(pipeline(&["export", nan3.to_str().unwrap(), "--out", dataset.to_str().unwrap(), "--camera-size", "64"]));
+    let v = check(&dataset, &nan3, None, &d);
+    assert_eq!((&v["frames"], &v["max_action_diff"]), (&serde_json::json!([3, 3]), &serde_json::json!(0.0)), "{v}");
+    // a stored action changed after the run: the replay leaves the stored trajectory
+    let tampered = run("random", "random");
+    let part = std::fs::read_dir(tampered.join("steps")).unwrap().next().unwrap().unwrap().path();
+    let edit = "import sys, pyarrow as pa, pyarrow.parquet as pq\n\
+                t = pq.read_table(sys.argv[1]); rows = t.to_pylist()\n\
+                for r in rows:\n    if r['policy_step'] == 2: r['action'][0] += 0.5\n\
+                pq.write_table(pa.Table.from_pylist(rows, schema=t.schema), sys.argv[1])\n";
+    let out = Command::new(lerobot_python()).args(["-c", edit, part.to_str().unwrap()]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    refused(&tampered, &["--where", "true"], "the replay is not deterministic: at step 12");
+    let leftovers = std::fs::read_dir(&d)
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().contains(".partial-"));
+    assert_eq!(leftovers.count(), 0);
 }

@@ -6,12 +6,13 @@
 //! checked the same way: every replayed step must reproduce the stored goal and end-effector
 //! position, or joints and reward). A frame is the observation before a policy step (the cameras
 //! as a policy sees them, the state), that step's stored action, and what followed it
-//! (`next.success`, `next.done`; ALOHA-sim's `next.reward`). LIBERO's wait steps are the
-//! protocol's settling, not frames.
+//! (`next.success`, `next.done`; ALOHA-sim's `next.reward`; a real-time run's `held`, the steps
+//! whose action was the hold, not the policy's). LIBERO's wait steps are the protocol's settling,
+//! not frames. With `--cap N` an episode's frames stop at policy step N, as its scoring does.
 //!
 //! Features follow lerobot's own names for each benchmark: LIBERO `observation.images.image` and
-//! `.image2` (agentview and wrist, rotated 180° as lerobot's `LiberoProcessorStep` gives them,
-//! upright) and the 8-D `observation.state` (eef position, axis-angle of robosuite's
+//! `.image2` (agentview and wrist: the render rotated 180°, as lerobot's `LiberoProcessorStep`
+//! gives them to its policies) and the 8-D `observation.state` (eef position, axis-angle of robosuite's
 //! `robot0_eef_quat`, fingers), `action` 7-D; ALOHA-sim `observation.images.top` (480 × 640),
 //! `observation.state` = `agent_pos` (14), `action` 14-D. The frame rate is the env's control rate.
 //!
@@ -109,6 +110,8 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
                 args.run
             );
         }
+        // each episode's failure mode is looked up: derive them once, not per episode
+        crate::session::materialize(&ctx, "failure_modes").await.context("queries/failure_modes.sql")?;
         let episodes = load_episodes(&ctx, store.url().as_str(), &keys).await?;
         anyhow::Ok((episodes, manifest))
     })?;
@@ -142,6 +145,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             .collect(),
             action_names: ["x", "y", "z", "rot_x", "rot_y", "rot_z", "gripper"].map(String::from).to_vec(),
             reward: false,
+            held: manifest.realtime.is_some(),
             encoding: args.video,
         },
         Benchmark::AlohaSim => {
@@ -155,10 +159,12 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
                 state_names: names.clone(),
                 action_names: names,
                 reward: true,
+                held: manifest.realtime.is_some(),
                 encoding: args.video,
             }
         }
     };
+    remove_abandoned_partials(&args.out);
     let partial = partial_path(&args.out);
     let _ = std::fs::remove_dir_all(&partial);
     let cleanup = PartialDir::new(partial.clone());
@@ -166,15 +172,19 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     let mut set = ReplayBundles::new(bundles);
     let gl = Rc::new(GlContext::new()?);
     let wait = manifest.num_steps_wait.max(0) as usize;
+    // the policy steps scored (`--cap`), and so exported
+    let cap = args.scoring.cap.map_or(usize::MAX, |c| c as usize);
     for (i, ep) in episodes.iter().enumerate() {
         writer.begin_episode(&ep.instruction)?;
         match &ep.steps {
-            StoredSteps::Libero { .. } => replay_libero(set.libero()?, &gl, ep, wait, args.camera_size, &mut writer),
-            StoredSteps::Aloha { .. } => replay_aloha(set.aloha()?, &gl, ep, &mut writer),
+            StoredSteps::Libero { .. } => {
+                replay_libero(set.libero()?, &gl, ep, wait, cap, args.camera_size, &mut writer)
+            }
+            StoredSteps::Aloha { .. } => replay_aloha(set.aloha()?, &gl, ep, cap, &mut writer),
         }
         .with_context(|| format!("exporting episode {}; nothing was written", ep.key))?;
         writer.end_episode()?;
-        eprintln!("[{}/{}] {} ({} frames)", i + 1, episodes.len(), ep.key, ep.n_policy_steps);
+        eprintln!("[{}/{}] {} ({} frames)", i + 1, episodes.len(), ep.key, (ep.n_policy_steps as usize).min(cap));
     }
     let provenance = serde_json::json!({
         "run": args.run,
@@ -183,6 +193,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         "policy_identity": manifest.policy_identity,
         "where": args.predicate,
         "scoring": args.scoring.describe(),
+        "realtime": manifest.realtime,
         "camera_size": args.camera_size,
         "episodes": episodes.iter().enumerate().map(|(i, e)| serde_json::json!({
             "episode_index": i, "episode_key": e.key, "success": e.success,
@@ -208,6 +219,22 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     Ok(())
 }
 
+/// Remove the half-written datasets of exports into `out` whose process is gone (killed before
+/// it could clean up): `.NAME.partial-PID` beside it, PID not running.
+fn remove_abandoned_partials(out: &Path) {
+    let name = out.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let prefix = format!(".{name}.partial-");
+    let dir = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for e in entries.flatten() {
+        let file = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = file.strip_prefix(&prefix).and_then(|p| p.parse::<u32>().ok()) else { continue };
+        if !Path::new(&format!("/proc/{pid}")).exists() && std::fs::remove_dir_all(e.path()).is_ok() {
+            eprintln!("removed {}, left by an export that was killed", e.path().display());
+        }
+    }
+}
+
 fn partial_path(out: &Path) -> PathBuf {
     let name = out.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "dataset".into());
     out.with_file_name(format!(".{name}.partial-{}", std::process::id()))
@@ -221,10 +248,11 @@ fn replay_libero(
     gl: &Rc<GlContext>,
     ep: &StoredEpisode,
     wait: usize,
+    cap: usize,
     size: u32,
     writer: &mut DatasetWriter,
 ) -> Result<()> {
-    let StoredSteps::Libero { perturbation, actions, eef_pos } = &ep.steps else { bail!("not a LIBERO episode") };
+    let StoredSteps::Libero { perturbation, actions, eef_pos, held } = &ep.steps else { bail!("not a LIBERO episode") };
     let bundle = set.load(ep.suite.parse().map_err(anyhow::Error::msg)?, ep.task_id)?;
     let mut env = LiberoEnv::new(&bundle)?;
     // the camera pose and robot init pose of a perturbed row; sensor noise was the policy's input
@@ -234,7 +262,7 @@ fn replay_libero(
     let options =
         RenderOptions { look: Look::Mujoco323, quality: Quality::Reference, max_width: size, max_height: size };
     let mut renderer = env.renderer(gl.clone(), options)?;
-    for (i, action) in actions.iter().enumerate() {
+    for (i, action) in actions.iter().enumerate().take(wait.saturating_add(cap)) {
         let frame = if i >= wait {
             let obs = env.observation();
             let q = obs.hand_quat;
@@ -266,6 +294,7 @@ fn replay_libero(
                 action: action.as_slice(),
                 reward: None,
                 success: out.goal.satisfied,
+                held: held[i],
             })?;
         }
     }
@@ -278,15 +307,16 @@ fn replay_aloha(
     bundle: &libero_sim::aloha::AlohaBundle,
     gl: &Rc<GlContext>,
     ep: &StoredEpisode,
+    cap: usize,
     writer: &mut DatasetWriter,
 ) -> Result<()> {
-    let StoredSteps::Aloha { actions, agent_pos, reward } = &ep.steps else { bail!("not an ALOHA-sim episode") };
+    let StoredSteps::Aloha { actions, agent_pos, reward, held } = &ep.steps else { bail!("not an ALOHA-sim episode") };
     let task = AlohaTask::from_id(ep.task_id as i64).with_context(|| format!("no ALOHA-sim task {}", ep.task_id))?;
     let seed = u32::try_from(ep.seed).with_context(|| format!("seed {} is outside numpy's range", ep.seed))?;
     let mut env = AlohaEnv::new(bundle, task)?;
     env.reset(seed)?;
     let mut renderer = env.renderer(gl.clone())?;
-    for (i, action) in actions.iter().enumerate() {
+    for (i, action) in actions.iter().enumerate().take(cap) {
         let state = env.agent_pos().map(|v| v as f32);
         let top = env.render_top(&mut renderer)?;
         let replayed = env.step(action).with_context(|| format!("replaying step {i}"))? as i32;
@@ -308,6 +338,7 @@ fn replay_aloha(
             action: action.as_slice(),
             reward: Some(replayed as f32),
             success: replayed == libero_sim::aloha::MAX_REWARD as i32,
+            held: held[i],
         })?;
     }
     Ok(())

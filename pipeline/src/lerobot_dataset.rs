@@ -89,6 +89,8 @@ pub struct DatasetLayout {
     pub action_names: Vec<String>,
     /// Whether frames carry `next.reward` (ALOHA-sim's 0–4 stages).
     pub reward: bool,
+    /// Whether frames carry `held`: a real-time run's hold actions, which the policy did not choose.
+    pub held: bool,
     pub encoding: VideoEncoding,
 }
 
@@ -100,6 +102,7 @@ pub struct Frame<'a> {
     pub action: &'a [f32],
     pub reward: Option<f32>,
     pub success: bool,
+    pub held: bool,
 }
 
 /// The dataset being written under a folder of its own.
@@ -133,6 +136,7 @@ struct FrameColumns {
     state: Vec<f32>,
     action: Vec<f32>,
     reward: Vec<f32>,
+    held: Vec<bool>,
     success: Vec<bool>,
     done: Vec<bool>,
     timestamp: Vec<f32>,
@@ -217,6 +221,9 @@ impl DatasetWriter {
         if layout.reward {
             f.reward.push(frame.reward.unwrap_or(0.0));
         }
+        if layout.held {
+            f.held.push(frame.held);
+        }
         f.success.push(frame.success);
         f.done.push(false);
         f.timestamp.push(ep.frames as f32 / layout.fps as f32);
@@ -281,6 +288,10 @@ impl DatasetWriter {
         if l.reward {
             fields.push(Field::new("next.reward", DataType::Float32, true));
             columns.push(Arc::new(Float32Array::from(f.reward.clone())));
+        }
+        if l.held {
+            fields.push(Field::new("held", DataType::Boolean, true));
+            columns.push(Arc::new(BooleanArray::from(f.held.clone())));
         }
         fields.extend([
             Field::new("next.success", DataType::Boolean, true),
@@ -381,7 +392,8 @@ impl DatasetWriter {
         if l.reward {
             features.insert("next.reward".into(), json!({"dtype": "float32", "shape": [1], "names": null}));
         }
-        for b in ["next.success", "next.done"] {
+        let flags = ["next.success", "next.done"].into_iter().chain(l.held.then_some("held"));
+        for b in flags {
             features.insert(b.into(), json!({"dtype": "bool", "shape": [1], "names": null}));
         }
         features.insert("timestamp".into(), json!({"dtype": "float32", "shape": [1], "names": null}));
@@ -414,6 +426,12 @@ impl DatasetWriter {
         out.insert("action".to_string(), vector_stats(&f.action, l.action_names.len()));
         if l.reward {
             out.insert("next.reward".to_string(), vector_stats(&f.reward, 1));
+        }
+        let as_01 = |v: &[bool]| v.iter().map(|&b| b as u8 as f32).collect::<Vec<_>>();
+        out.insert("next.success".to_string(), vector_stats(&as_01(&f.success), 1));
+        out.insert("next.done".to_string(), vector_stats(&as_01(&f.done), 1));
+        if l.held {
+            out.insert("held".to_string(), vector_stats(&as_01(&f.held), 1));
         }
         out.insert("timestamp".to_string(), vector_stats(&f.timestamp, 1));
         let as_f32 = |v: &[i64]| v.iter().map(|&x| x as f32).collect::<Vec<_>>();
@@ -589,7 +607,8 @@ fn image_stats(histogram: &[[u64; 256]; 3], frames: usize) -> Value {
 
 /// A camera's MP4 being written by `ffmpeg` from raw RGB frames at a constant frame rate from 0.
 struct VideoPipe {
-    child: Child,
+    /// None once finished; a pipe dropped unfinished (an export that failed) kills its ffmpeg.
+    child: Option<Child>,
     stdin: Option<ChildStdin>,
     path: PathBuf,
     frames: usize,
@@ -616,7 +635,7 @@ impl VideoPipe {
                 )
             })?;
         let stdin = child.stdin.take();
-        Ok(VideoPipe { child, stdin, path: path.to_path_buf(), frames: 0 })
+        Ok(VideoPipe { child: Some(child), stdin, path: path.to_path_buf(), frames: 0 })
     }
 
     fn push(&mut self, rgb: &[u8]) -> Result<()> {
@@ -628,7 +647,8 @@ impl VideoPipe {
 
     fn finish(mut self) -> Result<usize> {
         drop(self.stdin.take());
-        let out = self.child.wait_with_output().context("waiting for ffmpeg")?;
+        let child = self.child.take().expect("running until finished");
+        let out = child.wait_with_output().context("waiting for ffmpeg")?;
         if !out.status.success() {
             bail!("ffmpeg failed writing {}: {}", self.path.display(), String::from_utf8_lossy(&out.stderr).trim());
         }
@@ -636,9 +656,25 @@ impl VideoPipe {
     }
 }
 
+impl Drop for VideoPipe {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn episodes_past_a_thousand_go_to_the_next_chunk() {
+        assert_eq!(video_path("observation.images.top", 999), "videos/observation.images.top/chunk-000/file-999.mp4");
+        assert_eq!(video_path("observation.images.top", 1000), "videos/observation.images.top/chunk-001/file-000.mp4");
+        assert_eq!(data_path(1), "data/chunk-001/file-000.parquet");
+    }
 
     #[test]
     fn quantiles_interpolate_as_numpy_does() {

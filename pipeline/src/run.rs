@@ -90,7 +90,8 @@ pub struct Args {
     /// Real-time evaluation: the env keeps its control rate (LIBERO 20 Hz, ALOHA-sim 50 Hz) while
     /// the policy computes, and the steps its answer is late for run the hold action (--hold).
     /// A number of milliseconds every model query takes (reproducible on any machine; a chunked
-    /// policy's queued actions take none), or `measured`: each policy call's own wall time here.
+    /// policy's queued actions take none; refused for vla-eval:, whose server keeps the chunks), or
+    /// `measured`: each policy call's own wall time here.
     /// An answer of L ms runs floor(L / step period) steps after its query. Stored per step
     /// (steps.held) and in the manifest; compare the run with its closed-loop twin.
     #[arg(long, value_name = "MS|measured", value_parser = libero_schema::real_time::parse_latency, allow_hyphen_values = true)]
@@ -178,6 +179,15 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         ),
         (None, None) => None,
     };
+    if let Some(libero_schema::real_time::RealTime { latency: libero_schema::real_time::Latency::Fixed { ms }, .. }) =
+        realtime
+        && args.policy.chunks_kept_remotely()
+    {
+        bail!(
+            "--latency-ms {ms} charges each model query, but {}'s server keeps its action chunks, so every step looks like a query and would be charged. Use --latency-ms measured (each call's own time: a queued action comes back at once). No episode was started.",
+            args.policy.name()
+        );
+    }
     let max_steps: BTreeMap<Suite, u32> =
         tasks.iter().map(|(s, _)| (*s, args.max_steps.unwrap_or_else(|| s.max_steps()))).collect();
     let aloha_max_steps = args.max_steps.unwrap_or(aloha_protocol::LEROBOT_MAX_STEPS);

@@ -119,12 +119,15 @@ pub(crate) enum StoredSteps {
         actions: Vec<[f32; 7]>,
         /// Stored end-effector position after each step: the replay must reproduce it exactly.
         eef_pos: Vec<[f64; 3]>,
+        /// Whether each step ran a real-time hold (`steps.held`; false in closed-loop runs).
+        held: Vec<bool>,
     },
     Aloha {
         actions: Vec<[f32; 14]>,
         /// Stored joints after each step and the reward: the replay must reproduce both.
         agent_pos: Vec<[f64; 14]>,
         reward: Vec<i32>,
+        held: Vec<bool>,
     },
 }
 
@@ -308,7 +311,7 @@ fn replay_to_video(
     args: &RenderArgs,
     path: &Path,
 ) -> Result<u64> {
-    let StoredSteps::Libero { perturbation, actions, eef_pos } = &ep.steps else {
+    let StoredSteps::Libero { perturbation, actions, eef_pos, .. } = &ep.steps else {
         bail!("{} is not a LIBERO episode", ep.key);
     };
     let every = frame_interval(args, 2)?;
@@ -381,7 +384,7 @@ fn replay_aloha_to_video(
     args: &RenderArgs,
     path: &Path,
 ) -> Result<u64> {
-    let StoredSteps::Aloha { actions, agent_pos, reward } = &ep.steps else {
+    let StoredSteps::Aloha { actions, agent_pos, reward, .. } = &ep.steps else {
         bail!("{} is not an ALOHA-sim episode", ep.key);
     };
     let every = frame_interval(args, 5)?;
@@ -507,29 +510,32 @@ pub(crate) async fn load_episodes(
                         .map_err(anyhow::Error::msg)
                         .with_context(|| format!("episode {key}"))?,
                 };
-                let rows = step_rows(ctx, &quoted, "action, goal, eef_pos").await?;
-                let (mut actions, mut goals, mut eef_pos) = (Vec::new(), Vec::new(), Vec::new());
+                let rows = step_rows(ctx, &quoted, "action, goal, eef_pos, coalesce(held, false)").await?;
+                let (mut actions, mut goals, mut eef_pos, mut held) = (vec![], vec![], vec![], vec![]);
                 for s in &rows {
                     for r in 0..s.num_rows() {
                         actions.push(fixed_row::<Float32Type, 7>(s, 0, r).context("actions have 7 components")?);
                         goals.push(s.column(1).as_boolean().value(r));
                         eef_pos.push(fixed_row::<Float64Type, 3>(s, 2, r).context("eef_pos has 3 components")?);
+                        held.push(s.column(3).as_boolean().value(r));
                     }
                 }
-                (goals, StoredSteps::Libero { perturbation, actions, eef_pos })
+                (goals, StoredSteps::Libero { perturbation, actions, eef_pos, held })
             }
             Benchmark::AlohaSim => {
-                let rows = step_rows(ctx, &quoted, "action, goal, agent_pos, reward").await?;
-                let (mut actions, mut goals, mut agent_pos, mut reward) = (vec![], vec![], vec![], vec![]);
+                let rows = step_rows(ctx, &quoted, "action, goal, agent_pos, reward, coalesce(held, false)").await?;
+                let (mut actions, mut goals, mut agent_pos, mut reward, mut held) =
+                    (vec![], vec![], vec![], vec![], vec![]);
                 for s in &rows {
                     for r in 0..s.num_rows() {
                         actions.push(fixed_row::<Float32Type, 14>(s, 0, r).context("actions have 14 components")?);
                         goals.push(s.column(1).as_boolean().value(r));
                         agent_pos.push(fixed_row::<Float64Type, 14>(s, 2, r).context("agent_pos has 14 components")?);
                         reward.push(s.column(3).as_primitive::<Int32Type>().value(r));
+                        held.push(s.column(4).as_boolean().value(r));
                     }
                 }
-                (goals, StoredSteps::Aloha { actions, agent_pos, reward })
+                (goals, StoredSteps::Aloha { actions, agent_pos, reward, held })
             }
         };
         out.push(StoredEpisode {

@@ -470,6 +470,13 @@ impl PolicySpec {
     }
 
     /// Baselines are expected to fail; results warn when one scores above 5%.
+    /// Whether the policy's server keeps the action chunks, so the pipeline cannot tell a model
+    /// query from a queued action (`vla-eval:`): a fixed real-time latency would be charged to
+    /// every step.
+    pub fn chunks_kept_remotely(&self) -> bool {
+        matches!(self, PolicySpec::VlaEval { .. })
+    }
+
     pub fn is_baseline(&self) -> bool {
         matches!(self, PolicySpec::Random | PolicySpec::Lift)
     }

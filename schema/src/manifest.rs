@@ -70,7 +70,8 @@ impl RunManifest {
             "control_freq_hz": self.control_freq_hz,
             "env": self.env,
         });
-        // only when set, so a closed-loop run's hash is what it was before the setting existed
+        // only when set: a closed-loop run's configuration reads as it did before the setting
+        // existed (tables_version, in it too, still tells the layouts apart)
         if let Some(rt) = &self.realtime {
             config["realtime"] = serde_json::json!(rt);
         }

@@ -6,8 +6,9 @@
 //! hold (`Benchmark.get_hold_action`). A wall clock makes the number depend on the machine and
 //! its load, so here time is virtual: a query that takes `L` ms (fixed, or the measured time of
 //! the `act` call) makes the env run `floor(L / period)` steps of the hold action before the
-//! answer is applied — the answer reaches the first step that starts after it arrived, as in
-//! vla-eval's `ActionBuffer`. The wait steps are the protocol's settling, not the policy's time;
+//! answer is applied: the observation goes out as the previous step ends, and the answer is
+//! applied by the step during whose period it arrives, as in vla-eval's live runner and its
+//! `ActionBuffer`. The wait steps are the protocol's settling, not the policy's time;
 //! the clock starts at the first policy step. Held steps are policy steps: the cap is the
 //! episode's time budget, and latency spends it.
 //!

@@ -52,7 +52,7 @@ def main(dataset, run, record=None):
     quat2aa = LiberoProcessorStep()._quat2axisangle
     out = {"len": len(ds), "fps": ds.fps, "episodes": ds.num_episodes, "tasks": [], "frames": [],
            "max_image_diff": 0, "max_state_diff": 0.0, "max_action_diff": 0.0, "max_policy_action_diff": 0.0,
-           "max_reward_diff": 0.0, "success_mismatches": 0, "done": 0}
+           "max_reward_diff": 0.0, "success_mismatches": 0, "done": 0, "held_frames": 0, "held_mismatches": 0}
     cameras = [k for k in ds.meta.features if k.startswith("observation.images.")]
     for i in range(len(ds)):
         item = ds[i]
@@ -64,6 +64,9 @@ def main(dataset, run, record=None):
         out["max_action_diff"] = max(out["max_action_diff"], float(np.abs(action - np.array(step["action"], dtype=np.float32)).max()))
         out["success_mismatches"] += int(bool(item["next.success"]) != bool(step["goal"]))
         out["done"] += int(bool(item["next.done"]))
+        if "held" in item:
+            out["held_frames"] += int(bool(item["held"]))
+            out["held_mismatches"] += int(bool(item["held"]) != bool(step["held"]))
         if f == 0:
             out["tasks"].append(item["task"])
             out["frames"].append(0)

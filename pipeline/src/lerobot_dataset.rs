@@ -23,6 +23,7 @@
 //! quantiles across episodes): vectors from their sorted values, images from a 256-bin histogram
 //! per channel, the quantiles numpy's linear interpolation of the sorted values.
 
+use crate::media::Mp4Writer;
 use anyhow::{Context, Result, bail};
 use arrow::array::{
     ArrayRef, BooleanArray, FixedSizeListArray, Float32Array, Float64Array, Int64Array, ListArray, RecordBatch,
@@ -35,9 +36,7 @@ use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::properties::WriterProperties;
 use serde_json::{Value, json};
 use std::collections::{BTreeMap, HashMap};
-use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::Arc;
 
 /// lerobot's episodes per chunk folder and the quantiles its statistics hold.
@@ -126,7 +125,7 @@ struct EpisodeRow {
 
 struct OpenEpisode {
     task_index: i64,
-    videos: Vec<VideoPipe>,
+    videos: Vec<Mp4Writer>,
     frames: usize,
     from: usize,
 }
@@ -187,7 +186,8 @@ impl DatasetWriter {
             .cameras
             .iter()
             .map(|c| {
-                VideoPipe::start(&self.root.join(video_path(&c.key, episode)), c, self.layout.fps, self.layout.encoding)
+                let path = self.root.join(video_path(&c.key, episode));
+                Mp4Writer::create_encoded(&path, c.width, c.height, self.layout.fps, self.layout.encoding.ffmpeg_args())
             })
             .collect::<Result<_>>()?;
         let from = self.frames.frame_index.len();
@@ -205,15 +205,12 @@ impl DatasetWriter {
         for ((image, video), (camera, histogram)) in
             frame.images.iter().zip(&mut ep.videos).zip(layout.cameras.iter().zip(&mut self.histograms))
         {
-            if image.len() != (camera.width * camera.height * 3) as usize {
-                bail!("camera {}'s frame is not {}x{} RGB", camera.key, camera.width, camera.height);
-            }
+            video.push_rgb(image).with_context(|| format!("camera {}", camera.key))?;
             for px in image.chunks_exact(3) {
                 for (c, &v) in px.iter().enumerate() {
                     histogram[c][v as usize] += 1;
                 }
             }
-            video.push(image)?;
         }
         let f = &mut self.frames;
         f.state.extend_from_slice(frame.state);
@@ -242,7 +239,7 @@ impl DatasetWriter {
         }
         for v in ep.videos {
             let written = v.finish()?;
-            if written != ep.frames {
+            if written != ep.frames as u64 {
                 bail!("a video holds {written} frames, its episode {}", ep.frames);
             }
         }
@@ -603,66 +600,6 @@ fn image_stats(histogram: &[[u64; 256]; 3], frames: usize) -> Value {
     let mut out = json!(stats);
     out["count"] = json!([frames]);
     out
-}
-
-/// A camera's MP4 being written by `ffmpeg` from raw RGB frames at a constant frame rate from 0.
-struct VideoPipe {
-    /// None once finished; a pipe dropped unfinished (an export that failed) kills its ffmpeg.
-    child: Option<Child>,
-    stdin: Option<ChildStdin>,
-    path: PathBuf,
-    frames: usize,
-}
-
-impl VideoPipe {
-    fn start(path: &Path, camera: &Camera, fps: u32, encoding: VideoEncoding) -> Result<Self> {
-        if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        }
-        let mut child = Command::new("ffmpeg")
-            .args(["-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24"])
-            .args(["-s", &format!("{}x{}", camera.width, camera.height), "-r", &fps.to_string(), "-i", "-"])
-            .args(encoding.ffmpeg_args())
-            .args(["-movflags", "+faststart"])
-            .arg(path)
-            .stdin(Stdio::piped())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .map_err(|e| {
-                anyhow::anyhow!(
-                    "cannot start ffmpeg ({e}); install it: `apt-get install ffmpeg` (./setup.sh does it as root)"
-                )
-            })?;
-        let stdin = child.stdin.take();
-        Ok(VideoPipe { child: Some(child), stdin, path: path.to_path_buf(), frames: 0 })
-    }
-
-    fn push(&mut self, rgb: &[u8]) -> Result<()> {
-        let stdin = self.stdin.as_mut().expect("open until finish");
-        stdin.write_all(rgb).with_context(|| format!("ffmpeg stopped while writing {}", self.path.display()))?;
-        self.frames += 1;
-        Ok(())
-    }
-
-    fn finish(mut self) -> Result<usize> {
-        drop(self.stdin.take());
-        let child = self.child.take().expect("running until finished");
-        let out = child.wait_with_output().context("waiting for ffmpeg")?;
-        if !out.status.success() {
-            bail!("ffmpeg failed writing {}: {}", self.path.display(), String::from_utf8_lossy(&out.stderr).trim());
-        }
-        Ok(self.frames)
-    }
-}
-
-impl Drop for VideoPipe {
-    fn drop(&mut self) {
-        if let Some(mut child) = self.child.take() {
-            let _ = child.kill();
-            let _ = child.wait();
-        }
-    }
 }
 
 #[cfg(test)]

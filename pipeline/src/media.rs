@@ -205,14 +205,19 @@ pub fn write_png(path: &Path, frame: &Frame) -> Result<()> {
     Ok(())
 }
 
-/// An H.264 MP4 being written by an `ffmpeg` child process from raw RGB frames.
+/// An H.264 MP4 being written by an `ffmpeg` child process from raw RGB frames, at a constant
+/// frame rate from 0. Dropped unfinished (a failed export or render), it kills its ffmpeg.
 pub struct Mp4Writer {
-    child: Child,
+    /// None once finished.
+    child: Option<Child>,
     stdin: Option<ChildStdin>,
     path: PathBuf,
     size: (u32, u32),
     frames: u64,
 }
+
+/// What browsers play: libx264 in yuv420p.
+const BROWSER_H264: &[&str] = &["-c:v", "libx264", "-preset", "medium", "-crf", "20", "-pix_fmt", "yuv420p"];
 
 impl Mp4Writer {
     /// Start `ffmpeg` writing `path` (`width`, `height` even) at `fps` frames per second.
@@ -220,13 +225,18 @@ impl Mp4Writer {
         if !width.is_multiple_of(2) || !height.is_multiple_of(2) {
             bail!("video size {width}x{height} must be even for yuv420p");
         }
+        Self::create_encoded(path, width, height, fps, BROWSER_H264)
+    }
+
+    /// As [`Mp4Writer::create`], encoded by `encoder` (ffmpeg output options, e.g. `-c:v ...`).
+    pub fn create_encoded(path: &Path, width: u32, height: u32, fps: u32, encoder: &[&str]) -> Result<Self> {
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         }
         let mut child = Command::new("ffmpeg")
             .args(["-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24"])
             .args(["-s", &format!("{width}x{height}"), "-r", &fps.to_string(), "-i", "-"])
-            .args(["-c:v", "libx264", "-preset", "medium", "-crf", "20", "-pix_fmt", "yuv420p"])
+            .args(encoder)
             .args(["-movflags", "+faststart"])
             .arg(path)
             .stdin(Stdio::piped())
@@ -239,7 +249,7 @@ impl Mp4Writer {
                 )
             })?;
         let stdin = child.stdin.take();
-        Ok(Mp4Writer { child, stdin, path: path.to_path_buf(), size: (width, height), frames: 0 })
+        Ok(Mp4Writer { child: Some(child), stdin, path: path.to_path_buf(), size: (width, height), frames: 0 })
     }
 
     pub fn push(&mut self, frame: &Frame) -> Result<()> {
@@ -247,8 +257,16 @@ impl Mp4Writer {
         if (frame.width, frame.height) != self.size {
             bail!("frame is {}x{}, the video {}x{}", frame.width, frame.height, self.size.0, self.size.1);
         }
+        self.push_rgb(&frame.rgb)
+    }
+
+    /// One frame of RGB rows, top-down, of the video's size.
+    pub fn push_rgb(&mut self, rgb: &[u8]) -> Result<()> {
+        if rgb.len() != (self.size.0 * self.size.1 * 3) as usize {
+            bail!("a frame of {} bytes is not {}x{} RGB", rgb.len(), self.size.0, self.size.1);
+        }
         let stdin = self.stdin.as_mut().expect("open until finish");
-        stdin.write_all(&frame.rgb).with_context(|| format!("ffmpeg stopped while writing {}", self.path.display()))?;
+        stdin.write_all(rgb).with_context(|| format!("ffmpeg stopped while writing {}", self.path.display()))?;
         self.frames += 1;
         Ok(())
     }
@@ -256,11 +274,21 @@ impl Mp4Writer {
     /// Close the pipe and wait for ffmpeg; returns the number of frames written.
     pub fn finish(mut self) -> Result<u64> {
         drop(self.stdin.take());
-        let out = self.child.wait_with_output().context("waiting for ffmpeg")?;
+        let child = self.child.take().expect("running until finished");
+        let out = child.wait_with_output().context("waiting for ffmpeg")?;
         if !out.status.success() {
             bail!("ffmpeg failed writing {}: {}", self.path.display(), String::from_utf8_lossy(&out.stderr).trim());
         }
         Ok(self.frames)
+    }
+}
+
+impl Drop for Mp4Writer {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
     }
 }
 

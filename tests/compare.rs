@@ -44,6 +44,7 @@ fn write_run(dir: &Path, policy: &str, episodes: &[(&str, i32, i32, i64, Outcome
         stop_on_success: false,
         instruction_source: Default::default(),
         realtime: None,
+        protocol: Some(Default::default()),
     };
     for &(suite, task, init, seed, outcome) in episodes {
         let key = EpisodeKey::new(suite, task, init, seed);

@@ -371,6 +371,7 @@ fn synthetic_run() -> PathBuf {
         stop_on_success: false,
         instruction_source: Default::default(),
         realtime: None,
+        protocol: Some(Default::default()),
     };
     let goal_at: [fn(u32) -> bool; 4] = [|p| (5..10).contains(&p), |p| p == 99, |_| false, |p| p >= 50];
     for (i, goal) in goal_at.iter().enumerate() {
@@ -448,6 +449,7 @@ fn synthetic_run() -> PathBuf {
         control_freq_hz: 20,
         env: libero_schema::Benchmark::Libero,
         realtime: None,
+        protocol: Default::default(),
     };
     std::fs::write(d.join("manifest.json"), serde_json::to_vec(&manifest).unwrap()).unwrap();
     d

@@ -20,6 +20,7 @@ mod expert;
 mod export;
 mod failure_modes;
 mod generalisation;
+mod lerobot_protocol;
 mod libero_plus;
 mod media;
 mod noise;

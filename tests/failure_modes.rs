@@ -128,6 +128,7 @@ fn run() -> PathBuf {
             stop_on_success: false,
             instruction_source: Default::default(),
             realtime: None,
+            protocol: Some(Default::default()),
         };
         for scene in ALL {
             let key = key(scene);

@@ -76,6 +76,7 @@ fn write_run(dir: &Path) {
         stop_on_success: false,
         instruction_source: Default::default(),
         realtime: None,
+        protocol: Some(Default::default()),
     };
     for (i, r) in rows().iter().enumerate() {
         let hash = format!("{i:012x}");

@@ -31,6 +31,7 @@ async fn episodes_written_to_an_object_store_url_are_listed_and_queryable() {
             stop_on_success: false,
             instruction_source: Default::default(),
             realtime: None,
+            protocol: Default::default(),
         },
         "test".into(),
         "{}".into(),

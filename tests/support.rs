@@ -206,6 +206,7 @@ pub fn write_constructed_manifest(dir: &Path, policy: &str, num_steps_wait: u32)
         control_freq_hz: 20,
         env: libero_schema::Benchmark::Libero,
         realtime: None,
+        protocol: Default::default(),
     };
     std::fs::write(dir.join("manifest.json"), serde_json::to_vec(&manifest).unwrap()).unwrap();
 }

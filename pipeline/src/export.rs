@@ -252,13 +252,15 @@ fn replay_libero(
     size: u32,
     writer: &mut DatasetWriter,
 ) -> Result<()> {
-    let StoredSteps::Libero { perturbation, actions, eef_pos, held } = &ep.steps else { bail!("not a LIBERO episode") };
+    let StoredSteps::Libero { perturbation, protocol, actions, eef_pos, held } = &ep.steps else {
+        bail!("not a LIBERO episode")
+    };
     let bundle = set.load(ep.suite.parse().map_err(anyhow::Error::msg)?, ep.task_id)?;
     let mut env = LiberoEnv::new(&bundle)?;
     // the camera pose and robot init pose of a perturbed row; sensor noise was the policy's input
     // only, and the frames are clean
     env.set_episode_edits(perturbation.env_edits(&bundle.task.problem)?)?;
-    env.reset(ep.init_state_id, ep.seed)?;
+    env.reset_under(*protocol, ep.init_state_id, ep.seed)?;
     let options =
         RenderOptions { look: Look::Mujoco323, quality: Quality::Reference, max_width: size, max_height: size };
     let mut renderer = env.renderer(gl.clone(), options)?;

@@ -70,8 +70,9 @@ pub struct Args {
     ///   actions), temporal:K (ACT's temporal ensembling) or adaptive:H:ALPHA (starVLA's)
     #[arg(long, verbatim_doc_comment)]
     policy: PolicySpec,
-    /// Episode cap in policy steps for every suite (default: the protocol's 220/280/300/520/400;
-    /// ALOHA-sim: lerobot's 400, where gym-aloha's registration and openpi use 300); at least 1.
+    /// Episode cap in policy steps for every suite (default: the spec rows' protocol's, canonical
+    /// 220/280/300/520/400, lerobot 280/280/300/520/400; ALOHA-sim: lerobot's 400, where
+    /// gym-aloha's registration and openpi use 300); at least 1.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     max_steps: Option<u32>,
     /// Wait steps before the policy acts.
@@ -188,8 +189,10 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             args.policy.name()
         );
     }
-    let max_steps: BTreeMap<Suite, u32> =
-        tasks.iter().map(|(s, _)| (*s, args.max_steps.unwrap_or_else(|| s.max_steps()))).collect();
+    let max_steps: BTreeMap<Suite, u32> = tasks
+        .iter()
+        .map(|(s, _)| (*s, args.max_steps.unwrap_or_else(|| specs.protocol.max_steps(s.base))))
+        .collect();
     let aloha_max_steps = args.max_steps.unwrap_or(aloha_protocol::LEROBOT_MAX_STEPS);
     let protocol = RunProtocol {
         max_steps,
@@ -198,6 +201,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         stop_on_success: args.stop_on_success,
         instruction_source: args.instruction,
         realtime,
+        protocol: specs.protocol,
     };
     // the workers' cameras on GPUs without the model where the machine has such GPUs
     libero_sim::gl::keep_renders_off(&args.policy.model_cuda_devices());
@@ -211,7 +215,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         mujoco_version: libero_sim::mujoco_version(),
         bundle_format_version: libero_schema::bundle_format::BUNDLE_FORMAT_VERSION,
         bundles_hash: match &aloha {
-            None => bundles_hash(&set, specs.keys.iter().map(|k| (k.suite.as_str(), k.task_id)))?,
+            None => bundles_hash(&set, specs.keys.iter().map(|k| (k.suite.as_str(), k.task_id)), specs.protocol)?,
             Some(b) => format!("{:x}", Sha256::digest(b.provenance.to_string().as_bytes())),
         },
         policy: args.policy.name(),
@@ -237,6 +241,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         },
         env: benchmark,
         realtime,
+        protocol: specs.protocol,
     };
     manifest.run_config = hex16(&Sha256::digest(manifest.config_fingerprint().as_bytes()));
 
@@ -548,6 +553,7 @@ async fn write_manifest(store: &RunStore, m: &RunManifest) -> Result<()> {
             s(m.instruction_source.name()),
             s(m.env.name()),
             Arc::new(StringArray::from(vec![m.realtime.map(|rt| serde_json::to_string(&rt)).transpose()?])),
+            s(m.protocol.name()),
         ],
     )?;
     store.put("manifest.parquet", parquet_bytes(&batch, Some(&serde_json::to_string(m)?))?).await
@@ -577,7 +583,11 @@ async fn print_results(location: &str, policy: &PolicySpec) -> Result<()> {
 /// Build timings and `checks` are left out: they describe a build, they do not change it (a
 /// rebuild or a later `verify_bundles.py` keeps the identity); other tasks built later (e.g.
 /// `--suites libero_90`) do not change a run's identity either.
-pub fn bundles_hash<'a>(set: &BundleSet, tasks: impl IntoIterator<Item = (&'a str, i32)>) -> Result<String> {
+pub fn bundles_hash<'a>(
+    set: &BundleSet,
+    tasks: impl IntoIterator<Item = (&'a str, i32)>,
+    protocol: libero_schema::EvalProtocol,
+) -> Result<String> {
     let used: BTreeSet<(&str, i32)> = tasks.into_iter().collect();
     let mut h = Sha256::new();
     for t in set.tasks().iter().filter(|t| used.contains(&(t.suite.as_str(), t.task_id as i32))) {
@@ -588,6 +598,18 @@ pub fn bundles_hash<'a>(set: &BundleSet, tasks: impl IntoIterator<Item = (&'a st
         if let Some(o) = prov.as_object_mut() {
             o.remove("checks");
             o.remove("built_seconds");
+            // lerobot's seeded fixture poses (added later by seeded_fixtures.py) are part of what a
+            // lerobot-protocol run uses, not a canonical one's: recording them keeps the latter's
+            // identity (and its resume)
+            match o.get_mut(libero_sim::bundle::SEEDED_RECORD).and_then(|r| r.as_object_mut()) {
+                Some(record) if protocol.seeds_every_reset() => {
+                    record.remove("checks");
+                    record.remove("built_seconds");
+                }
+                _ => {
+                    o.remove(libero_sim::bundle::SEEDED_RECORD);
+                }
+            }
         }
         h.update(format!("{}/{}\n{}\n", t.suite, t.task_id, prov).as_bytes());
     }

@@ -251,9 +251,10 @@ pub async fn open_on(
     if has_specs {
         ctx.register_parquet("specs", store.table_url("specs.parquet"), ParquetReadOptions::default()).await?;
         let spec_schema = ctx.table("specs").await?.schema().as_arrow().clone();
-        episode_fields.extend(
-            spec_schema.fields().iter().filter(|f| !tables::SPEC_COLUMNS.iter().any(|(n, _)| n == f.name())).cloned(),
-        );
+        // the spec's extra columns, carried through; its keys and `protocol` are stored columns
+        let stored = tables::episodes();
+        episode_fields
+            .extend(spec_schema.fields().iter().filter(|f| stored.field_with_name(f.name()).is_err()).cloned());
     }
     // Damaged parts (see RunStore::damaged_parts) are skipped, with both parts of their episode,
     // and named: the numbers then cover the other episodes, and `pipeline run` re-runs these.

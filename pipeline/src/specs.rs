@@ -7,15 +7,17 @@
 //! index); a spec table is of one benchmark. Validation names every offending row: missing columns,
 //! nulls, unknown suites or tasks, init states or seeds the bundles do not have, duplicate keys,
 //! extra columns whose names collide with the stored episode columns, and perturbation columns
-//! ([`libero_udfs::perturbation`]) of the wrong type or out of range.
+//! ([`libero_udfs::perturbation`]) of the wrong type or out of range. An optional `protocol`
+//! column ([`EvalProtocol`]: canonical, or lerobot for lerobot-eval's seeding at every reset) says
+//! which published loop the rows reproduce, one per table.
 
 use anyhow::{Context, Result, bail};
 use arrow::array::{ArrayRef, AsArray, Int32Array, Int64Array, RecordBatch, StringArray};
 use arrow::compute::{CastOptions, cast_with_options};
 use arrow::datatypes::{DataType, Field, Int32Type, Int64Type, Schema};
-use libero_schema::Suite;
 use libero_schema::protocol::{SEED, TRIALS_PER_TASK};
 use libero_schema::tables::{self, SPEC_COLUMNS};
+use libero_schema::{EvalProtocol, Suite};
 use libero_sim::bundle::BundleSet;
 use libero_udfs::perturbation::EpisodePerturbation;
 use libero_udfs::steps_batch::EpisodeKey;
@@ -31,6 +33,7 @@ Examples:
   # the canonical protocol: 4 suites x 10 tasks x 50 init states, seed 7 (2,000 episodes)
   pipeline specs -o specs.parquet
   pipeline specs --suites libero_goal --tasks 0,1 --trials 5 -o small.parquet
+  pipeline specs --protocol lerobot -o lerobot.parquet    # lerobot-eval's seeding and caps
   pipeline specs --benchmark aloha_sim -o aloha.parquet   # lerobot's: 2 tasks x 50 seeds from 1000";
 
 #[derive(clap::Args)]
@@ -46,9 +49,17 @@ pub struct Args {
     /// Task ids to include (default: every task of each suite).
     #[arg(long, value_delimiter = ',')]
     tasks: Vec<u32>,
-    /// Env seeds; each (task, trial) runs once per seed (canonical: 7, openpi/vla-eval; OpenVLA: 0).
-    #[arg(long, value_delimiter = ',', default_values_t = [SEED])]
+    /// Env seeds; each (task, trial) runs once per seed (default 7: openpi, vla-eval; OpenVLA: 0).
+    /// Not with --protocol lerobot, whose episode i is seeded --first-seed + i.
+    #[arg(long, value_delimiter = ',')]
     seeds: Vec<u64>,
+    /// libero: which published loop the rows reproduce. canonical: OpenVLA's and openpi's
+    /// (env.seed once per task, trial i on init state i after i+1 resets; caps 220/280/300/520/400).
+    /// lerobot: lerobot-eval's (episode i of a task seeded --first-seed + i right before its one
+    /// reset, on init state i; caps 280/280/300/520/400): the rows get a protocol column, and their
+    /// fixture poses must be recorded first (./setup.sh --lerobot-fixtures).
+    #[arg(long, default_value = "canonical")]
+    protocol: EvalProtocol,
     /// Output Parquet file.
     #[arg(short, long, default_value = "specs.parquet")]
     out: PathBuf,
@@ -92,7 +103,8 @@ pub struct Args {
     /// error that says so.
     #[arg(long, value_delimiter = ',')]
     cases: Vec<String>,
-    /// aloha_sim: episode i of a task is seeded FIRST_SEED + i (lerobot's evaluation: 1000).
+    /// aloha_sim and --protocol lerobot: episode i of a task is seeded FIRST_SEED + i (lerobot's
+    /// evaluation: 1000).
     #[arg(long, default_value_t = libero_schema::benchmark::aloha::LEROBOT_FIRST_SEED)]
     first_seed: i64,
 }
@@ -113,7 +125,20 @@ enum Benchmark {
     AlohaSim,
 }
 
-pub fn run(bundles: &Path, args: Args) -> Result<()> {
+pub fn run(bundles: &Path, mut args: Args) -> Result<()> {
+    if args.protocol == EvalProtocol::Lerobot && args.benchmark != Benchmark::Libero {
+        bail!(
+            "--protocol lerobot applies to --benchmark libero (ALOHA-sim's rows are lerobot's already: episode i seeded --first-seed + i)"
+        );
+    }
+    if args.protocol == EvalProtocol::Lerobot && !args.seeds.is_empty() {
+        bail!(
+            "--protocol lerobot seeds episode i of a task with --first-seed + i (lerobot-eval's 1000 + i); drop --seeds (or pass --first-seed)"
+        );
+    }
+    if args.seeds.is_empty() {
+        args.seeds = vec![SEED];
+    }
     if args.benchmark == Benchmark::AlohaSim {
         return write_specs(&aloha_spec_batch(&args)?, &args.out);
     }
@@ -163,27 +188,44 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             if args.trials as usize > entry.n_init_states {
                 bail!("--trials {} but {s} task {t} has {} init states", args.trials, entry.n_init_states);
             }
-            for &sd in &args.seeds {
-                for i in 0..args.trials {
-                    suite.push(s.name().to_string());
-                    task.push(t as i32);
-                    init.push(i as i32);
-                    seed.push(sd as i64);
+            match args.protocol {
+                EvalProtocol::Canonical => {
+                    for &sd in &args.seeds {
+                        for i in 0..args.trials {
+                            suite.push(s.name().to_string());
+                            task.push(t as i32);
+                            init.push(i as i32);
+                            seed.push(sd as i64);
+                        }
+                    }
+                }
+                // lerobot-eval: episode i of the task on init state i, seeded first_seed + i
+                // (restarting at first_seed for every task)
+                EvalProtocol::Lerobot => {
+                    for i in 0..args.trials {
+                        suite.push(s.name().to_string());
+                        task.push(t as i32);
+                        init.push(i as i32);
+                        seed.push(args.first_seed + i as i64);
+                    }
                 }
             }
         }
     }
-    let schema =
-        Arc::new(Schema::new(SPEC_COLUMNS.iter().map(|(n, t)| Field::new(*n, t.clone(), false)).collect::<Vec<_>>()));
-    let batch = RecordBatch::try_new(
-        schema,
-        vec![
-            Arc::new(StringArray::from(suite)),
-            Arc::new(Int32Array::from(task)),
-            Arc::new(Int32Array::from(init)),
-            Arc::new(Int64Array::from(seed)),
-        ],
-    )?;
+    let mut fields: Vec<Field> = SPEC_COLUMNS.iter().map(|(n, t)| Field::new(*n, t.clone(), false)).collect();
+    let n = suite.len();
+    let mut columns: Vec<ArrayRef> = vec![
+        Arc::new(StringArray::from(suite)),
+        Arc::new(Int32Array::from(task)),
+        Arc::new(Int32Array::from(init)),
+        Arc::new(Int64Array::from(seed)),
+    ];
+    // a canonical table stays the four key columns, as before the column existed
+    if args.protocol != EvalProtocol::Canonical {
+        fields.push(Field::new(EvalProtocol::COLUMN, DataType::Utf8, false));
+        columns.push(Arc::new(StringArray::from(vec![args.protocol.name(); n])));
+    }
+    let batch = RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)?;
     write_specs(&batch, &args.out)
 }
 
@@ -243,6 +285,9 @@ pub struct Specs {
     /// The first row whose perturbation acts on what the policy sees (camera view, sensor noise),
     /// if any: meaningless for a policy that sees no camera.
     pub first_camera_row: Option<usize>,
+    /// The published loop the rows reproduce (the optional column `protocol`; canonical without
+    /// it), one per table: it decides the caps of the run.
+    pub protocol: EvalProtocol,
 }
 
 /// The one benchmark of a spec table's rows (LIBERO for a table without rows or a suite column,
@@ -333,7 +378,41 @@ fn validate_aloha(batch: RecordBatch, extras: Vec<String>, source: &str) -> Resu
         keys.push(key);
     }
     refuse_problems(source, problems)?;
-    Ok(Specs { batch, keys, extras, first_camera_row: None })
+    Ok(Specs { batch, keys, extras, first_camera_row: None, protocol: EvalProtocol::Canonical })
+}
+
+/// The protocol of a spec table's rows (column `protocol`; absent or null: canonical): one for
+/// the whole table, since a run's caps are its protocol's.
+fn spec_protocol(raw: &RecordBatch, source: &str) -> Result<EvalProtocol> {
+    use arrow::array::Array;
+    let Some(column) = raw.column_by_name(EvalProtocol::COLUMN) else { return Ok(EvalProtocol::Canonical) };
+    if !matches!(column.data_type(), DataType::Utf8 | DataType::LargeUtf8 | DataType::Utf8View) {
+        bail!(
+            "spec file {source}: column protocol has type {}, expected a string (canonical or lerobot). No episode was started.",
+            column.data_type()
+        );
+    }
+    let column = arrow::compute::cast(column, &DataType::Utf8)?;
+    let values = column.as_string::<i32>();
+    let mut first: Option<(usize, EvalProtocol)> = None;
+    for r in 0..values.len() {
+        let p = if values.is_null(r) {
+            EvalProtocol::Canonical
+        } else {
+            values
+                .value(r)
+                .parse()
+                .map_err(|e: String| anyhow::anyhow!("spec file {source}: row {r}: {e}. No episode was started."))?
+        };
+        match first {
+            None => first = Some((r, p)),
+            Some((r0, p0)) if p0 != p => bail!(
+                "spec file {source} mixes protocols: row {r0} is {p0}, row {r} is {p}; a run is of one protocol (its caps are the run's): split the table and run each. No episode was started."
+            ),
+            Some(_) => {}
+        }
+    }
+    Ok(first.map_or(EvalProtocol::Canonical, |(_, p)| p))
 }
 
 /// A spec Parquet file as one batch, unvalidated.
@@ -361,11 +440,13 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
         );
     }
     let stored: Vec<String> = tables::episodes().fields().iter().map(|f| f.name().clone()).collect();
+    let protocol = spec_protocol(&raw, source)?;
+    // `protocol` is stored in the episodes' own column, not carried through as an extra
     let extras: Vec<String> = schema
         .fields()
         .iter()
         .map(|f| f.name().clone())
-        .filter(|n| !SPEC_COLUMNS.iter().any(|(k, _)| k == n))
+        .filter(|n| !SPEC_COLUMNS.iter().any(|(k, _)| k == n) && n != EvalProtocol::COLUMN)
         .collect();
     let clashes: Vec<&String> = extras.iter().filter(|n| stored.contains(n)).collect();
     if !clashes.is_empty() {
@@ -389,6 +470,11 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
         columns.push(cast);
         fields.push(Field::new(name, dt, true));
     }
+    // kept in the stored spec table (right after the keys) so that it says what its rows meant
+    if let Ok(i) = schema.index_of(EvalProtocol::COLUMN) {
+        columns.push(raw.column(i).clone());
+        fields.push(schema.field(i).clone());
+    }
     for name in &extras {
         let i = schema.index_of(name)?;
         columns.push(raw.column(i).clone());
@@ -397,6 +483,11 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
     let batch = RecordBatch::try_new(Arc::new(Schema::new(fields)), columns)?;
 
     if spec_benchmark(&batch, source)? == libero_schema::Benchmark::AlohaSim {
+        if batch.column_by_name(EvalProtocol::COLUMN).is_some() {
+            bail!(
+                "spec file {source}: a protocol column names a LIBERO loop, and its rows are ALOHA-sim's (suite aloha_sim), whose only loop is lerobot's (episode i seeded --first-seed + i); drop the column. No episode was started."
+            );
+        }
         return validate_aloha(batch, extras, source);
     }
     let extras_batch = batch.project(&(SPEC_COLUMNS.len()..batch.num_columns()).collect::<Vec<_>>())?;
@@ -408,8 +499,8 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
     let mut keys = Vec::with_capacity(batch.num_rows());
     let mut first_row: HashMap<String, usize> = HashMap::new();
     let mut needs_camera: Option<usize> = None;
-    // per task: (number of init states, env seeds with fixture poses, problem class), or why the
-    // bundle failed
+    // per task: (number of init states, env seeds with fixture poses under the table's protocol,
+    // problem class), or why the bundle failed
     type TaskFacts = Result<(usize, Vec<u64>, String), String>;
     let mut bundle_cache: BTreeMap<(Suite, u32), TaskFacts> = BTreeMap::new();
     for r in 0..batch.num_rows() {
@@ -440,7 +531,11 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
         let info = bundle_cache.entry((s, t)).or_insert_with(|| {
             let entry = bundles.entry(s, t).map_err(|e| e.to_string())?;
             let b = bundles.load(s, t).map_err(|e| e.to_string())?;
-            Ok((entry.n_init_states, b.task.fixture_seeds.clone(), b.task.problem.clone()))
+            let seeds = match protocol {
+                EvalProtocol::Canonical => b.task.fixture_seeds.clone(),
+                EvalProtocol::Lerobot => b.seeded_fixture_seeds(),
+            };
+            Ok((entry.n_init_states, seeds, b.task.problem.clone()))
         });
         let perturbation = match EpisodePerturbation::from_row(&extras_batch, r) {
             Ok(p) => p,
@@ -466,9 +561,15 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
                     ));
                 }
                 if !seeds.contains(&(seed.value(r) as u64)) {
-                    problems.push(format!(
-                        "{row}: the bundles have fixture poses for seeds {seeds:?} only; add the seed at set-up (scripts/reference/build_bundles.py --seeds) or use one of those"
-                    ));
+                    problems.push(match protocol {
+                        EvalProtocol::Canonical => format!(
+                            "{row}: the bundles have fixture poses for seeds {seeds:?} only; add the seed at set-up (scripts/reference/build_bundles.py --seeds) or use one of those"
+                        ),
+                        EvalProtocol::Lerobot => format!(
+                            "{row}: protocol lerobot starts from the fixture poses after env.seed(seed) and one reset, and the bundles have them for {} only; record lerobot's seeds 1000-1049 with ./setup.sh --lerobot-fixtures (other seeds or tasks: scripts/reference/seeded_fixtures.py data/bundles --tasks SUITE/NN --seeds FROM-TO in the reference venv)",
+                            seed_list(seeds)
+                        ),
+                    });
                 }
             }
         }
@@ -486,5 +587,15 @@ pub fn validate(raw: RecordBatch, bundles: &BundleSet, source: &str) -> Result<S
     if batch.num_rows() == 0 {
         bail!("spec file {source} has no rows");
     }
-    Ok(Specs { batch, keys, extras, first_camera_row: needs_camera })
+    Ok(Specs { batch, keys, extras, first_camera_row: needs_camera, protocol })
+}
+
+/// `seeds 1000..=1049`, `seeds [1000, 1002]` or `no seed`.
+fn seed_list(seeds: &[u64]) -> String {
+    match seeds {
+        [] => "no seed".to_string(),
+        [only] => format!("seed {only}"),
+        s if s.windows(2).all(|w| w[1] == w[0] + 1) => format!("seeds {}..={}", s[0], s[s.len() - 1]),
+        s => format!("seeds {s:?}"),
+    }
 }

@@ -116,6 +116,8 @@ pub(crate) enum StoredSteps {
     Libero {
         /// What the episode's spec row perturbed (`episodes.perturbation_params`), re-applied.
         perturbation: EpisodePerturbation,
+        /// The loop it reproduced (`episodes.protocol`): which fixture poses it started from.
+        protocol: libero_schema::EvalProtocol,
         actions: Vec<[f32; 7]>,
         /// Stored end-effector position after each step: the replay must reproduce it exactly.
         eef_pos: Vec<[f64; 3]>,
@@ -311,7 +313,7 @@ fn replay_to_video(
     args: &RenderArgs,
     path: &Path,
 ) -> Result<u64> {
-    let StoredSteps::Libero { perturbation, actions, eef_pos, .. } = &ep.steps else {
+    let StoredSteps::Libero { perturbation, protocol, actions, eef_pos, .. } = &ep.steps else {
         bail!("{} is not a LIBERO episode", ep.key);
     };
     let every = frame_interval(args, 2)?;
@@ -320,7 +322,7 @@ fn replay_to_video(
     // The episode's camera pose and robot init pose: the same physics, seen as the policy saw it
     // (sensor noise is on the policy's input only; the video shows the clean frames).
     env.set_episode_edits(perturbation.env_edits(&bundle.task.problem)?)?;
-    env.reset(ep.init_state_id, ep.seed)?;
+    env.reset_under(*protocol, ep.init_state_id, ep.seed)?;
     let layout = args.panel.layout();
     let options = args.panel.options(&layout);
     let mut renderer = env.renderer(gl.clone(), options)?;
@@ -479,7 +481,7 @@ pub(crate) async fn load_episodes(
         let rows = ctx
             .sql(&format!(
                 "SELECT suite, task_id, init_state_id, seed, instruction, success, n_policy_steps, error, \
-                 perturbation_params FROM episodes WHERE episode_key = {quoted}"
+                 perturbation_params, protocol FROM episodes WHERE episode_key = {quoted}"
             ))
             .await?
             .collect()
@@ -510,6 +512,16 @@ pub(crate) async fn load_episodes(
                         .map_err(anyhow::Error::msg)
                         .with_context(|| format!("episode {key}"))?,
                 };
+                let protocol = b.column(9).as_string::<i32>();
+                // null in runs before tables v9: all canonical
+                let protocol = match protocol.is_null(0) {
+                    true => libero_schema::EvalProtocol::Canonical,
+                    false => protocol
+                        .value(0)
+                        .parse()
+                        .map_err(anyhow::Error::msg)
+                        .with_context(|| format!("episode {key}"))?,
+                };
                 let rows = step_rows(ctx, &quoted, "action, goal, eef_pos, coalesce(held, false)").await?;
                 let (mut actions, mut goals, mut eef_pos, mut held) = (vec![], vec![], vec![], vec![]);
                 for s in &rows {
@@ -520,7 +532,7 @@ pub(crate) async fn load_episodes(
                         held.push(s.column(3).as_boolean().value(r));
                     }
                 }
-                (goals, StoredSteps::Libero { perturbation, actions, eef_pos, held })
+                (goals, StoredSteps::Libero { perturbation, protocol, actions, eef_pos, held })
             }
             Benchmark::AlohaSim => {
                 let rows = step_rows(ctx, &quoted, "action, goal, agent_pos, reward, coalesce(held, false)").await?;

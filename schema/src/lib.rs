@@ -18,4 +18,4 @@ pub mod tables_reference;
 
 pub use benchmark::Benchmark;
 pub use manifest::RunManifest;
-pub use protocol::{BaseSuite, InstructionSource, Perturbation, Suite};
+pub use protocol::{BaseSuite, EvalProtocol, InstructionSource, Perturbation, Suite};

@@ -41,6 +41,10 @@ pub struct RunManifest {
     /// tables v8.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub realtime: Option<crate::real_time::RealTime>,
+    /// Which published loop the run's LIBERO episodes reproduce (the spec column `protocol`): how
+    /// the env was seeded and the caps' source. Canonical in every run before tables v9.
+    #[serde(default)]
+    pub protocol: crate::EvalProtocol,
 }
 
 fn libero() -> crate::Benchmark {
@@ -74,6 +78,10 @@ impl RunManifest {
         // existed (tables_version, in it too, still tells the layouts apart)
         if let Some(rt) = &self.realtime {
             config["realtime"] = serde_json::json!(rt);
+        }
+        // likewise: a canonical run's configuration reads as before the setting existed
+        if self.protocol != crate::EvalProtocol::Canonical {
+            config["protocol"] = serde_json::json!(self.protocol);
         }
         config.to_string()
     }

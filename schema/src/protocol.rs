@@ -279,6 +279,74 @@ impl<'de> Deserialize<'de> for Suite {
     }
 }
 
+/// Which published loop a LIBERO episode reproduces: how its env was seeded (so which fixture
+/// poses it starts from) and its cap. The spec column `protocol`; one per run.
+///
+/// The fixture poses (cabinet, stove, rack...) are re-sampled from numpy's global RNG at every
+/// `reset()`, so the seeding decides the scene (`shared/reference/libero-port-spec.md`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EvalProtocol {
+    /// OpenVLA's `run_libero_eval.py`, inherited by openpi, starVLA and vla-eval: `env.seed(seed)`
+    /// once per task, then one hard `reset()` per episode, so episode `init_state_id` starts from
+    /// the fixture poses after `init_state_id + 1` resets; caps [`BaseSuite::max_steps`]. What a
+    /// spec row without a `protocol` column means.
+    #[default]
+    Canonical,
+    /// lerobot-eval (lerobot 0.6.1, `envs/libero.py` `LiberoEnv.reset`): `env.seed(seed)` right
+    /// before the episode's one hard `reset()` (episode k of a task: seed 1000 + k, init state k),
+    /// so the episode starts from the fixture poses after `env.seed(seed)` and one reset; caps
+    /// [`EvalProtocol::max_steps`] (`TASK_SUITE_MAX_STEPS`: libero_spatial 280, not 220).
+    Lerobot,
+}
+
+impl EvalProtocol {
+    pub const ALL: [EvalProtocol; 2] = [EvalProtocol::Canonical, EvalProtocol::Lerobot];
+    /// The spec column that names a row's protocol (absent or null: canonical).
+    pub const COLUMN: &'static str = "protocol";
+    /// lerobot-eval's first env seed (`EvalConfig.seed = 1000`); episode k of a task gets 1000 + k.
+    pub const LEROBOT_FIRST_SEED: i64 = 1000;
+
+    pub fn name(self) -> &'static str {
+        match self {
+            EvalProtocol::Canonical => "canonical",
+            EvalProtocol::Lerobot => "lerobot",
+        }
+    }
+
+    /// The env was seeded right before the episode's reset (rather than once per task).
+    pub fn seeds_every_reset(self) -> bool {
+        self == EvalProtocol::Lerobot
+    }
+
+    /// Episode cap in policy steps, wait steps not counted: the canonical caps, or lerobot's
+    /// `TASK_SUITE_MAX_STEPS` (280 / 280 / 300 / 520 / 400; its comments: the longest training
+    /// demos plus a margin).
+    pub fn max_steps(self, base: BaseSuite) -> u32 {
+        match (self, base) {
+            (EvalProtocol::Lerobot, BaseSuite::LiberoSpatial) => 280,
+            _ => base.max_steps(),
+        }
+    }
+}
+
+impl fmt::Display for EvalProtocol {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for EvalProtocol {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        EvalProtocol::ALL.into_iter().find(|p| p.name() == s).ok_or_else(|| {
+            format!(
+                "unknown protocol {s:?}; use canonical (env.seed once per task: OpenVLA, openpi) or lerobot (env.seed before every reset: lerobot-eval)"
+            )
+        })
+    }
+}
+
 /// Which of a task's instruction texts the policy is given (`pipeline run --instruction`).
 ///
 /// A LIBERO task has two: the BDDL `(:language ...)` tag (`env.language_instruction`) and
@@ -354,5 +422,19 @@ mod tests {
         let list = Suite::parse_list("libero_goal,libero_pro,libero_goal_swap").unwrap();
         assert_eq!(list.len(), 1 + 16, "libero_pro expands to the 16 shipped suites, no duplicates");
         assert!(!list.iter().any(|s| s.perturbation == Some(Perturbation::Env)));
+    }
+
+    #[test]
+    fn lerobot_protocol_caps_are_lerobots_and_names_round_trip() {
+        let caps: Vec<u32> = BaseSuite::ALL.iter().map(|b| EvalProtocol::Lerobot.max_steps(*b)).collect();
+        assert_eq!(caps, [280, 280, 300, 520, 400], "lerobot 0.6.1 TASK_SUITE_MAX_STEPS");
+        let canonical: Vec<u32> = BaseSuite::ALL.iter().map(|b| EvalProtocol::Canonical.max_steps(*b)).collect();
+        assert_eq!(canonical, [220, 280, 300, 520, 400]);
+        for p in EvalProtocol::ALL {
+            assert_eq!(p.name().parse::<EvalProtocol>().unwrap(), p);
+            assert_eq!(serde_json::to_string(&p).unwrap(), format!("\"{}\"", p.name()));
+        }
+        assert!("openvla".parse::<EvalProtocol>().unwrap_err().contains("canonical"));
+        assert_eq!(EvalProtocol::default(), EvalProtocol::Canonical);
     }
 }

@@ -19,7 +19,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, LazyLock};
 
 /// Version of the step/episode/manifest layout; stored in every manifest and part.
-pub const TABLES_VERSION: u32 = 8;
+pub const TABLES_VERSION: u32 = 9;
 /// Arrow field-metadata key holding a field's documentation.
 pub const DOC_KEY: &str = "doc";
 /// Parquet key-value metadata key holding the run manifest (JSON) in every part.
@@ -71,7 +71,7 @@ fn key_fields() -> Vec<Field> {
             "seed",
             DataType::Int64,
             false,
-            "env seed: fixture poses are those of episode init_state_id after env.seed(seed)",
+            "env seed: fixture poses are those of episode init_state_id after env.seed(seed) (the canonical protocol: seeded once per task), or after env.seed(seed) and one reset (protocol lerobot: seeded at every reset)",
         ),
     ]
 }
@@ -328,6 +328,12 @@ pub fn episodes() -> SchemaRef {
                 true,
                 "the simulated benchmark the episode ran in, from its suite: libero (every LIBERO, LIBERO-PRO and LIBERO-Plus suite) or aloha_sim; null in runs before tables v7 (all LIBERO). (A LIBERO-Plus or LIBERO-PRO robustness spec table's own `benchmark` column, carried through, names the protocol that made its rows.)",
             ),
+            field(
+                "protocol",
+                DataType::Utf8,
+                true,
+                "which published loop the episode reproduces, from the spec column protocol: canonical (env.seed(seed) once per task, then a reset per episode: OpenVLA, openpi) or lerobot (env.seed(seed) right before the episode's one reset: lerobot-eval); its cap is that protocol's. Null for ALOHA-sim (lerobot's own loop) and in runs before tables v9 (canonical)",
+            ),
         ]);
         Arc::new(Schema::new(f))
     });
@@ -375,6 +381,12 @@ pub fn manifest() -> SchemaRef {
                 DataType::Utf8,
                 true,
                 "real-time evaluation (JSON: latency fixed ms or measured, hold repeat|stay); null for a closed-loop run, where the env waits for every answer",
+            ),
+            field(
+                "protocol",
+                DataType::Utf8,
+                true,
+                "which published loop the run's LIBERO episodes reproduce (the spec column protocol): canonical (env.seed once per task, OpenVLA's caps) or lerobot (env.seed before every reset, lerobot-eval's caps); null before tables v9 (canonical)",
             ),
         ]))
     });

@@ -47,9 +47,12 @@ pub fn tables_markdown() -> String {
     md.push_str("## specs\n\n");
     md.push_str(
         "`RUN/specs.parquet`: the spec table the run was started with, one row per episode. These \
-         columns are required; every other column is carried through to the episode rows, and the \
-         perturbation columns perturb the episode (see [LIBERO-Plus](libero-plus.md) and \
-         [LIBERO-PRO](libero-pro.md)).\n\n",
+         columns are required. An optional `protocol` column (string, one value per table: \
+         `canonical` when absent or null, or `lerobot`) says which published loop the rows \
+         reproduce, how the env was seeded and so which fixture poses an episode starts from \
+         (see [Protocol](protocol.md)); it is stored in the episodes' `protocol`. Every other column \
+         is carried through to the episode rows, and the perturbation columns perturb the episode \
+         (see [LIBERO-Plus](libero-plus.md) and [LIBERO-PRO](libero-pro.md)).\n\n",
     );
     md.push_str("| column | type |\n|---|---|\n");
     for (name, data_type) in &SPEC_COLUMNS {

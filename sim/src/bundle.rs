@@ -11,6 +11,7 @@
 //!     scene.xml                     robosuite's raw MJCF, asset paths relative to this file
 //!     init_states.npy               (n, 1+nq+nv) float64 rows: [time, qpos, qvel]
 //!     fixtures.json                 fixture root-body poses per env seed and episode index
+//!     fixtures_seeded.json          optional: poses after env.seed(seed) and one reset, per seed
 //!     task.json                     instruction, goal, objects, regions, controller constants
 //!     reference_model.json          the reference's compiled-model sizes and arrays
 //!     provenance.json               versions, input hashes, checks made at build time
@@ -20,11 +21,17 @@
 //! task (OpenVLA: 0, openpi: 7). The reference re-samples fixture poses (cabinet, stove, rack…) from
 //! numpy's global RNG at every `reset()`, so the scene of episode `i` is the one after `i+1` resets:
 //! the bundle stores it for `(seed, episode = init_state_id)`.
+//!
+//! **lerobot's protocol** ([`EvalProtocol::Lerobot`]) seeds the env right before each episode's one
+//! reset instead, so its episodes start from the poses after `env.seed(seed)` and one reset:
+//! `fixtures_seeded.json`, added to built bundles by `scripts/reference/seeded_fixtures.py`
+//! (`./setup.sh --lerobot-fixtures`) and read only when `provenance.json` records it
+//! (`seeded_at_reset`).
 
 use crate::SimError;
 use crate::npy::{self, Array2};
 use libero_schema::bundle_format::{BUNDLE_FORMAT_VERSION, MUJOCO_VERSION};
-use libero_schema::{InstructionSource, Suite};
+use libero_schema::{EvalProtocol, InstructionSource, Suite};
 use serde::Deserialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -343,6 +350,17 @@ struct FixturesFile {
     seeds: BTreeMap<String, Vec<BTreeMap<String, Pose>>>,
 }
 
+/// The fixture poses of env seeds set right before one reset (lerobot's protocol), beside
+/// `fixtures.json`; optional.
+pub const SEEDED_FIXTURES_FILE: &str = "fixtures_seeded.json";
+/// The `provenance.json` key recording [`SEEDED_FIXTURES_FILE`]: its sha256, seeds and checks.
+pub const SEEDED_RECORD: &str = "seeded_at_reset";
+
+#[derive(Debug, Clone, Deserialize)]
+struct SeededFixturesFile {
+    seeds: BTreeMap<String, BTreeMap<String, Pose>>,
+}
+
 /// `reference_model.json`: the reference's compiled model, for parity checks.
 #[derive(Debug, Clone, Deserialize)]
 pub struct ReferenceModel {
@@ -360,6 +378,9 @@ pub struct TaskBundle {
     pub init_states: Array2,
     /// seed -> episode -> fixture root body -> pose.
     fixtures: BTreeMap<u64, Vec<BTreeMap<String, Pose>>>,
+    /// seed -> fixture root body -> pose after `env.seed(seed)` and one reset (lerobot's
+    /// protocol); empty when `fixtures_seeded.json` was not recorded.
+    seeded: BTreeMap<u64, BTreeMap<String, Pose>>,
     pub provenance: serde_json::Value,
     /// Each object's footprint radius (robosuite's `horizontal_radius`), by object name, from
     /// `object_radii.json` beside `index.json` (written at set-up from LIBERO's object classes;
@@ -413,6 +434,17 @@ impl TaskBundle {
             })?;
             fixtures.insert(seed, episodes);
         }
+        let mut seeded = BTreeMap::new();
+        if provenance.get(SEEDED_RECORD).is_some() {
+            let file: SeededFixturesFile = read_json(&dir.join(SEEDED_FIXTURES_FILE))?;
+            for (seed, poses) in file.seeds {
+                let seed: u64 = seed.parse().map_err(|_| SimError::BundleCorrupt {
+                    path: dir.join(SEEDED_FIXTURES_FILE),
+                    detail: format!("seed key {seed:?} is not an integer"),
+                })?;
+                seeded.insert(seed, poses);
+            }
+        }
         if !dir.join("scene.xml").exists() {
             return Err(SimError::BundleCorrupt { path: dir.join("scene.xml"), detail: "missing".into() });
         }
@@ -429,7 +461,7 @@ impl TaskBundle {
                 )
             }
         };
-        Ok(TaskBundle { dir, task, init_states, fixtures, provenance, horizontal_radii })
+        Ok(TaskBundle { dir, task, init_states, fixtures, seeded, provenance, horizontal_radii })
     }
 
     pub fn scene_path(&self) -> PathBuf {
@@ -455,6 +487,37 @@ impl TaskBundle {
     /// Env seeds with recorded fixture poses.
     pub fn fixture_seeds(&self) -> Vec<u64> {
         self.fixtures.keys().copied().collect()
+    }
+
+    /// Env seeds with recorded fixture poses after `env.seed(seed)` and one reset (lerobot's
+    /// protocol); empty when none were recorded.
+    pub fn seeded_fixture_seeds(&self) -> Vec<u64> {
+        self.seeded.keys().copied().collect()
+    }
+
+    /// The fixture poses an episode of `protocol` starts from: episode `init_state_id` after
+    /// `env.seed(seed)` (canonical), or after `env.seed(seed)` and one reset (lerobot).
+    pub fn start_fixture_poses(
+        &self,
+        protocol: EvalProtocol,
+        seed: u64,
+        init_state_id: usize,
+    ) -> Result<&BTreeMap<String, Pose>, SimError> {
+        match protocol {
+            EvalProtocol::Canonical => self.fixture_poses(seed, init_state_id),
+            EvalProtocol::Lerobot => self.seeded.get(&seed).ok_or_else(|| SimError::UnknownSeededSeed {
+                seed,
+                path: self.dir.clone(),
+                available: match self.seeded_fixture_seeds().as_slice() {
+                    [] => "no seed".to_string(),
+                    [only] => format!("seed {only}"),
+                    seeds if seeds.windows(2).all(|w| w[1] == w[0] + 1) => {
+                        format!("seeds {}..={}", seeds[0], seeds[seeds.len() - 1])
+                    }
+                    seeds => format!("seeds {seeds:?}"),
+                },
+            }),
+        }
     }
 
     /// Fixture root-body poses of episode `episode` after `env.seed(seed)`.

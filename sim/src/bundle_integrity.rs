@@ -32,6 +32,9 @@ fn verify_task(root: &Path, bundle: &TaskBundle, assets_checked: &mut BTreeSet<P
             check_file(&bundle.dir.join(file), expected)?;
         }
     }
+    if let Some(expected) = bundle.provenance[crate::bundle::SEEDED_RECORD]["sha256"].as_str() {
+        check_file(&bundle.dir.join(crate::bundle::SEEDED_FIXTURES_FILE), expected)?;
+    }
     if let Some(expected) = hashes["init_states"].as_str() {
         // the exporter hashes the array's float64 bytes (numpy's tobytes), not the .npy file
         let mut h = Sha256::new();

@@ -23,6 +23,10 @@ pub enum SimError {
         "no fixture poses for env seed {seed} (episode {episode}): the bundle has seeds {available} and {episodes} episodes each; rebuild with ./setup.sh after adding the seed"
     )]
     UnknownSeed { seed: u64, episode: usize, available: String, episodes: usize },
+    #[error(
+        "no fixture poses for env seed {seed} set right before the reset (protocol lerobot) in the bundle at {path}: it has them for {available}; record lerobot's seeds with ./setup.sh --lerobot-fixtures (scripts/reference/seeded_fixtures.py BUNDLES --tasks SUITE/NN --seeds S)"
+    )]
+    UnknownSeededSeed { seed: u64, path: PathBuf, available: String },
     #[error("invalid action {action:?}: {reason}")]
     InvalidAction { action: Vec<f64>, reason: String },
     #[error("simulation became unstable at step {step}: {detail}")]

@@ -36,6 +36,9 @@ pub struct EpisodeProtocol {
     pub instruction_source: InstructionSource,
     /// Real-time evaluation: latency and hold ([`crate::real_time`]); None for closed loop.
     pub realtime: Option<RealTime>,
+    /// Which published loop a LIBERO episode reproduces (how the env was seeded, so its fixture
+    /// poses); None for ALOHA-sim, whose only loop is lerobot's.
+    pub protocol: Option<libero_schema::EvalProtocol>,
 }
 
 /// Why an episode ended early; stored as `error_kind` / `error`.
@@ -57,7 +60,8 @@ impl EpisodeError {
             | SimError::UnknownTask { .. }
             | SimError::Compile { .. }
             | SimError::InitStateOutOfRange { .. }
-            | SimError::UnknownSeed { .. } => "bundle",
+            | SimError::UnknownSeed { .. }
+            | SimError::UnknownSeededSeed { .. } => "bundle",
             SimError::NoGl { .. } | SimError::RenderSize { .. } | SimError::UnknownCamera { .. } => "render",
             _ => "internal",
         };
@@ -118,16 +122,20 @@ impl EpisodeSummary {
 }
 
 /// sha256 of everything an episode starts from: the scene file's hash (from the bundle's
-/// provenance), the fixture poses of (seed, episode) and the init state row. Two episodes with the
+/// provenance), the fixture poses of (seed, episode) under `protocol` and the init state row. Two episodes with the
 /// same hash start in the same state, whichever suite they belong to (a perturbation that only
 /// changes the instruction keeps it), so their outcomes can be compared pair by pair. The spec's
 /// perturbation columns are not in it: a camera view or robot init pose changes what follows the
 /// start, not the start (`perturbation_params` says what they were).
-pub fn start_sha256(bundle: &libero_sim::bundle::TaskBundle, key: &EpisodeKey) -> Result<String, SimError> {
+pub fn start_sha256(
+    bundle: &libero_sim::bundle::TaskBundle,
+    key: &EpisodeKey,
+    protocol: libero_schema::EvalProtocol,
+) -> Result<String, SimError> {
     use sha2::{Digest, Sha256};
     let mut h = Sha256::new();
     h.update(bundle.provenance["sha256"]["scene_xml"].as_str().unwrap_or_default().as_bytes());
-    for (body, pose) in bundle.fixture_poses(key.seed as u64, key.init_state_id as usize)? {
+    for (body, pose) in bundle.start_fixture_poses(protocol, key.seed as u64, key.init_state_id as usize)? {
         h.update(body.as_bytes());
         for v in pose.pos.iter().chain(&pose.quat) {
             h.update(v.to_le_bytes());
@@ -172,7 +180,7 @@ pub fn run_episode(
     let mut summary = EpisodeSummary {
         instruction: instruction.clone(),
         instruction_source,
-        start_sha256: start_sha256(env.bundle(), key).ok(),
+        start_sha256: start_sha256(env.bundle(), key, protocol.protocol.unwrap_or_default()).ok(),
         n_policy_steps: 0,
         first_success_step: None,
         final_goal: false,
@@ -191,13 +199,14 @@ pub fn run_episode(
         summary.error = Some(EpisodeError::from_sim(&e));
         return (steps, summary);
     }
-    let mut goal = match env.reset(key.init_state_id as usize, key.seed as u64) {
-        Ok(g) => g,
-        Err(e) => {
-            summary.error = Some(EpisodeError::from_sim(&e));
-            return (steps, summary);
-        }
-    };
+    let mut goal =
+        match env.reset_under(protocol.protocol.unwrap_or_default(), key.init_state_id as usize, key.seed as u64) {
+            Ok(g) => g,
+            Err(e) => {
+                summary.error = Some(EpisodeError::from_sim(&e));
+                return (steps, summary);
+            }
+        };
     policy.reset(&instruction, policy_seed);
     // Privileged state only for the policies that ask for it (scripted experts).
     let scene = match policy.wants_scene().then(|| SceneReader::new(env)).transpose() {
@@ -468,6 +477,8 @@ pub fn episode_batch(
         Arc::new(Float64Array::from(vec![s.started_at])),
         // `env`
         Arc::new(StringArray::from(vec![Benchmark::of_suite(&key.suite).name()])),
+        // `protocol`
+        Arc::new(StringArray::from(vec![ctx.protocol.protocol.map(|p| p.name())])),
     ];
     let base = tables::episodes();
     let schema = match extras {

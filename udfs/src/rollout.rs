@@ -64,7 +64,7 @@ pub struct RolloutContext {
 /// The protocol settings of a run: what every episode's [`EpisodeProtocol`] is made from.
 #[derive(Debug, Clone)]
 pub struct RunProtocol {
-    /// Episode cap in policy steps per suite (a suite not listed gets its published cap).
+    /// Episode cap in policy steps per suite (a suite not listed gets its protocol's cap).
     pub max_steps: BTreeMap<Suite, u32>,
     /// ALOHA-sim's episode cap (lerobot's 400 by default; gym-aloha's registration says 300).
     pub aloha_max_steps: u32,
@@ -73,6 +73,8 @@ pub struct RunProtocol {
     pub instruction_source: libero_schema::InstructionSource,
     /// Real-time evaluation (`--latency-ms`); None: the env waits for every answer.
     pub realtime: Option<libero_schema::real_time::RealTime>,
+    /// Which published loop the LIBERO episodes reproduce (the spec column `protocol`).
+    pub protocol: libero_schema::EvalProtocol,
 }
 
 impl RunProtocol {
@@ -84,16 +86,18 @@ impl RunProtocol {
             stop_on_success: self.stop_on_success,
             instruction_source: self.instruction_source,
             realtime: self.realtime,
+            protocol: None,
         }
     }
 
     pub fn episode(&self, suite: Suite) -> EpisodeProtocol {
         EpisodeProtocol {
-            max_steps: self.max_steps.get(&suite).copied().unwrap_or_else(|| suite.max_steps()),
+            max_steps: self.max_steps.get(&suite).copied().unwrap_or_else(|| self.protocol.max_steps(suite.base)),
             num_steps_wait: self.num_steps_wait,
             stop_on_success: self.stop_on_success,
             instruction_source: self.instruction_source,
             realtime: self.realtime,
+            protocol: Some(self.protocol),
         }
     }
 }

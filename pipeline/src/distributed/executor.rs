@@ -141,6 +141,7 @@ impl ExecutorRuns {
             stop_on_success: manifest.stop_on_success,
             instruction_source: manifest.instruction_source,
             realtime: manifest.realtime,
+            protocol: manifest.protocol,
         };
         let store = self.io.block_on(RunStore::connect(&run.location))?;
         Ok(RolloutContext::new(
@@ -213,7 +214,7 @@ fn check_same_build(manifest: &RunManifest, bundles: &BundleSet, tasks: &BTreeSe
         ));
     }
     let used: Vec<(String, i32)> = tasks.iter().map(|(s, t)| (s.name(), *t as i32)).collect();
-    match crate::run::bundles_hash(bundles, used.iter().map(|(s, t)| (s.as_str(), *t))) {
+    match crate::run::bundles_hash(bundles, used.iter().map(|(s, t)| (s.as_str(), *t)), manifest.protocol) {
         Ok(hash) if hash == manifest.bundles_hash => {
             libero_sim::bundle_integrity::verify_tasks(bundles, tasks)
                 .map_err(|e| anyhow::anyhow!("the bundles here ({}) are damaged: {e}", bundles.root().display()))?;
@@ -251,7 +252,7 @@ mod tests {
             pipeline_version: env!("CARGO_PKG_VERSION").into(),
             mujoco_version: libero_sim::mujoco_version(),
             bundle_format_version: libero_schema::bundle_format::BUNDLE_FORMAT_VERSION,
-            bundles_hash: crate::run::bundles_hash(&bundles, [("libero_spatial", 0)]).unwrap(),
+            bundles_hash: crate::run::bundles_hash(&bundles, [("libero_spatial", 0)], Default::default()).unwrap(),
             policy: "random".into(),
             policy_identity: serde_json::json!({}),
             num_steps_wait: 10,
@@ -262,6 +263,7 @@ mod tests {
             control_freq_hz: 20,
             env: libero_schema::Benchmark::Libero,
             realtime: None,
+            protocol: Default::default(),
         };
         check_same_build(&manifest, &bundles, &tasks).unwrap();
         let other = RunManifest {

@@ -302,8 +302,20 @@ impl LiberoEnv {
     /// poses are those of episode `init_state_id` after `env.seed(seed)` (the canonical protocol
     /// runs trial i on init state i).
     pub fn reset(&mut self, init_state_id: usize, seed: u64) -> Result<GoalStatus, SimError> {
+        self.reset_under(libero_schema::EvalProtocol::Canonical, init_state_id, seed)
+    }
+
+    /// Start an episode as `protocol`'s loop does: [`reset`](Self::reset) for the canonical one;
+    /// for lerobot's, `env.seed(seed)` right before one `reset()`, then
+    /// `set_init_state(init_states[init_state_id])` (the fixture poses after the seed and one reset).
+    pub fn reset_under(
+        &mut self,
+        protocol: libero_schema::EvalProtocol,
+        init_state_id: usize,
+        seed: u64,
+    ) -> Result<GoalStatus, SimError> {
         let state = self.bundle.init_state(init_state_id)?.to_vec();
-        let poses = self.bundle.fixture_poses(seed, init_state_id)?.clone();
+        let poses = self.bundle.start_fixture_poses(protocol, seed, init_state_id)?.clone();
         self.reset_to(&poses, &state)
     }
 

@@ -25,6 +25,9 @@ pub type AlohaAction = [f32; ALOHA_ACTION_DIM];
 /// What an ALOHA-sim policy sees before a step.
 #[derive(Debug, Clone, Default)]
 pub struct AlohaObservation {
+    /// gym-aloha's task name (`env.task`: `transfer_cube`, `insertion`), which lerobot-eval passes
+    /// as the observation's `task` (gym-aloha has no `task_description`).
+    pub task: &'static str,
     pub policy_step: u32,
     /// `obs["agent_pos"]`: per arm 6 joint positions and the normalized left-finger position.
     pub agent_pos: [f64; ALOHA_ACTION_DIM],

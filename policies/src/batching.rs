@@ -18,6 +18,10 @@
 //! With N workers the batch is up to N episodes, and an episode's actions are the same as with a
 //! batch of one (a batch changes the arithmetic only where the model's kernels do).
 //!
+//! The batcher is the benchmark's: its types default to LIBERO's observation and 7-D action
+//! ([`BatchedPolicy`]); ALOHA-sim's episodes share calls alike with its observation and 14-D
+//! action ([`BatchedAlohaPolicy`]).
+//!
 //! Several devices: [`Replicas`] holds one batcher per model replica (one per GPU, say); each
 //! episode is served by one replica from its start to its end, and each replica batches its own
 //! share. An episode starts on the replica where (its episodes in progress + 1) × (its recent
@@ -34,6 +38,7 @@
 //! device is given fewer episodes and smaller batches instead of more, and is tried again once the
 //! others hold enough.
 
+use crate::aloha::{AlohaAction, AlohaObservation, AlohaPolicy};
 use crate::chunking::ActionChunker;
 use crate::{ActTiming, Action, Observation, Policy, PolicyError};
 use std::any::Any;
@@ -43,30 +48,35 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// One worker's query, as the model receives it.
-pub struct Request {
+pub struct Request<O = Observation> {
     pub instruction: String,
     /// The episode's seed ([`Policy::reset`]): a model that samples (flow-matching noise) draws
     /// from it, so an episode's actions do not depend on the episodes sharing its forward.
     pub episode_seed: u64,
-    pub obs: Observation,
+    pub obs: O,
     /// What the model's [`BatchModel::preparer`] made of `obs` on the asking worker's thread.
     pub prepared: Option<Box<dyn Any + Send>>,
 }
 
 /// A model's host-side preparation of one query (image preprocessing), run by the asking worker.
-pub type Preparer = Arc<dyn Fn(&Observation) -> Result<Box<dyn Any + Send>, String> + Send + Sync>;
+pub type Preparer<O = Observation> = Arc<dyn Fn(&O) -> Result<Box<dyn Any + Send>, String> + Send + Sync>;
 
 /// A model that predicts an action chunk for each of several (instruction, observation) pairs
-/// in one call.
-pub trait BatchModel: Send + 'static {
+/// in one call; `O` and `A` are the benchmark's observation and action (LIBERO's by default).
+pub trait BatchModel<O = Observation, A = Action>: Send + 'static {
     /// One chunk per request, in the requests' order.
-    fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>>;
+    fn predict_batch(&mut self, requests: &[Request<O>]) -> Vec<Result<Vec<A>, String>>;
     /// The preparation of a query's inputs that needs no model state, run on the asking worker's
     /// thread, in parallel with the other workers, instead of serially on the batching thread
     /// while the accelerator waits. On the H100 OpenVLA's image preprocessing took 100 ms of a
     /// 460 ms forward cycle of 16 episodes there (`data/benchmarks/gpu-end-to-end-*`).
-    fn preparer(&self) -> Option<Preparer> {
+    fn preparer(&self) -> Option<Preparer<O>> {
         None
+    }
+    /// Whether the model reads a camera: LIBERO's at [`BatchModel::camera_size`], ALOHA-sim's
+    /// `top` at its fixed 480 × 640.
+    fn reads_cameras(&self) -> bool {
+        self.camera_size().is_some()
     }
     /// [`crate::Policy::wants_wrist_camera`] of the model's policies.
     fn wants_wrist_camera(&self) -> bool {
@@ -86,14 +96,17 @@ pub trait BatchModel: Send + 'static {
 /// process: every rollout worker's policy instance must reach the same ones. The first caller
 /// loads them, each in its own thread (`make(i)` for replica i: (model, most episodes per
 /// forward, longest wait)); a replica that fails to load fails them all.
-pub fn shared_replicas<M: BatchModel>(
+pub fn shared_replicas<O: Clone + Send + 'static, A: Send + 'static, M: BatchModel<O, A>>(
     name: &str,
     count: usize,
     make: impl Fn(usize) -> Result<(M, usize, Duration), PolicyError> + Sync,
-) -> Result<Arc<Replicas>, PolicyError> {
+) -> Result<Arc<Replicas<O, A>>, PolicyError> {
     let mut map = REPLICAS.get_or_init(Default::default).lock().expect("replicas");
-    if let Some(r) = map.get(name) {
-        return Ok(r.clone());
+    if let Some(shared) = map.get(name) {
+        return shared.replicas.clone().downcast::<Replicas<O, A>>().map_err(|_| PolicyError {
+            policy: name.into(),
+            detail: "this policy's replicas serve another benchmark in this process".into(),
+        });
     }
     let loaded: Vec<Result<(M, usize, Duration), PolicyError>> = std::thread::scope(|scope| {
         let make = &make;
@@ -106,11 +119,18 @@ pub fn shared_replicas<M: BatchModel>(
         batchers.push(Batcher::start(model, max_batch, max_wait));
     }
     let replicas = Replicas::new(batchers);
-    map.insert(name.to_string(), replicas.clone());
+    let stats = replicas.batchers.iter().map(|b| b.stats.clone()).collect();
+    map.insert(name.to_string(), SharedReplicas { replicas: replicas.clone(), stats });
     Ok(replicas)
 }
 
-static REPLICAS: std::sync::OnceLock<Mutex<std::collections::HashMap<String, Arc<Replicas>>>> =
+/// A name's replicas, of whichever benchmark's types, and each batcher's statistics.
+struct SharedReplicas {
+    replicas: Arc<dyn Any + Send + Sync>,
+    stats: Vec<Arc<Mutex<BatchStats>>>,
+}
+
+static REPLICAS: std::sync::OnceLock<Mutex<std::collections::HashMap<String, SharedReplicas>>> =
     std::sync::OnceLock::new();
 
 /// Every shared batcher of this process by name (`NAME [replica i of n]` where there are
@@ -120,11 +140,11 @@ pub fn shared_batcher_stats() -> Vec<(String, BatchStats)> {
     let Some(map) = REPLICAS.get() else { return Vec::new() };
     let map = map.lock().expect("replicas");
     let mut stats = Vec::new();
-    for (name, replicas) in map.iter() {
-        let n = replicas.batchers.len();
-        for (i, b) in replicas.batchers.iter().enumerate() {
+    for (name, shared) in map.iter() {
+        let n = shared.stats.len();
+        for (i, b) in shared.stats.iter().enumerate() {
             let label = if n == 1 { name.clone() } else { format!("{name} [replica {} of {n}]", i + 1) };
-            stats.push((label, b.stats()));
+            stats.push((label, b.lock().expect("stats").clone()));
         }
     }
     stats.sort_by(|a, b| a.0.cmp(&b.0));
@@ -132,21 +152,21 @@ pub fn shared_batcher_stats() -> Vec<(String, BatchStats)> {
 }
 
 /// A model's replicas, one [`Batcher`] each, and which serves the next episode.
-pub struct Replicas {
-    batchers: Vec<Arc<Batcher>>,
+pub struct Replicas<O = Observation, A = Action> {
+    batchers: Vec<Arc<Batcher<O, A>>>,
     /// Held while an episode picks its replica, so that workers starting together spread.
     choosing: Mutex<()>,
 }
 
-impl Replicas {
+impl<O, A> Replicas<O, A> {
     /// At least one batcher; all of one model (the first one's cameras and chunking stand for all).
-    pub fn new(batchers: Vec<Arc<Batcher>>) -> Arc<Replicas> {
+    pub fn new(batchers: Vec<Arc<Batcher<O, A>>>) -> Arc<Self> {
         assert!(!batchers.is_empty(), "a model needs at least one replica");
         Arc::new(Replicas { batchers, choosing: Mutex::new(()) })
     }
 
     /// One replica.
-    pub fn single(batcher: Arc<Batcher>) -> Arc<Replicas> {
+    pub fn single(batcher: Arc<Batcher<O, A>>) -> Arc<Self> {
         Replicas::new(vec![batcher])
     }
 
@@ -182,7 +202,7 @@ impl Replicas {
         self.batchers.iter().map(|b| b.stats()).collect()
     }
 
-    fn first(&self) -> &Batcher {
+    fn first(&self) -> &Batcher<O, A> {
         &self.batchers[0]
     }
 }
@@ -191,9 +211,11 @@ impl Replicas {
 /// the stored steps count the forwards of a run ([`ActTiming::forward_id`]).
 static FORWARD_IDS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
-type Reply = Sender<(Result<Vec<Action>, String>, ActTiming)>;
+type Reply<A> = Sender<(Result<Vec<A>, String>, ActTiming)>;
 /// A worker's query: the request, when it was sent, where to answer.
-type Query = (Request, Instant, Reply);
+type Query<O, A> = (Request<O>, Instant, Reply<A>);
+/// When a query was sent, and where to answer it.
+type Sent<A> = (Instant, Reply<A>);
 
 /// Batch sizes the batcher has run, for tests and benchmarks.
 #[derive(Debug, Default, Clone)]
@@ -228,10 +250,11 @@ impl BatchStats {
 }
 
 /// The thread that owns the model and answers batches.
-pub struct Batcher {
-    queue: Mutex<Sender<Query>>,
-    preparer: Option<Preparer>,
+pub struct Batcher<O = Observation, A = Action> {
+    queue: Mutex<Sender<Query<O, A>>>,
+    preparer: Option<Preparer<O>>,
     camera_size: Option<u32>,
+    reads_cameras: bool,
     wants_wrist_camera: bool,
     /// Episodes in progress on this batcher's policies: a forward waits for all of them.
     in_progress: Arc<AtomicUsize>,
@@ -242,13 +265,29 @@ pub struct Batcher {
     recent_forward_ms: Arc<AtomicU64>,
 }
 
-impl Batcher {
+impl<O, A> Batcher<O, A> {
+    /// The moving average of this batcher's forward ms; 0 before its first forward.
+    fn recent_forward_ms(&self) -> f64 {
+        f64::from_bits(self.recent_forward_ms.load(Ordering::SeqCst))
+    }
+
+    /// The model's [`BatchModel::replan_steps`].
+    pub fn replan_steps(&self) -> usize {
+        self.replan_steps
+    }
+
+    pub fn stats(&self) -> BatchStats {
+        self.stats.lock().expect("stats").clone()
+    }
+}
+
+impl<O: Clone + Send + 'static, A: Send + 'static> Batcher<O, A> {
     /// Start the batching thread for `model`.
-    pub fn start(mut model: impl BatchModel, max_batch: usize, max_wait: Duration) -> Arc<Batcher> {
-        let (tx, rx): (Sender<Query>, Receiver<_>) = channel();
+    pub fn start(mut model: impl BatchModel<O, A>, max_batch: usize, max_wait: Duration) -> Arc<Self> {
+        let (tx, rx): (Sender<Query<O, A>>, Receiver<_>) = channel();
         let stats = Arc::new(Mutex::new(BatchStats::default()));
         let (camera_size, replan_steps, preparer) = (model.camera_size(), model.replan_steps(), model.preparer());
-        let wants_wrist_camera = model.wants_wrist_camera();
+        let (wants_wrist_camera, reads_cameras) = (model.wants_wrist_camera(), model.reads_cameras());
         let thread_stats = stats.clone();
         let in_progress = Arc::new(AtomicUsize::new(0));
         let thread_in_progress = in_progress.clone();
@@ -267,7 +306,7 @@ impl Batcher {
                         Err(_) => break,
                     }
                 }
-                let (requests, replies): (Vec<Request>, Vec<(Instant, Reply)>) =
+                let (requests, replies): (Vec<Request<O>>, Vec<Sent<A>>) =
                     pending.into_iter().map(|(request, sent, reply)| (request, (sent, reply))).unzip();
                 let started = Instant::now();
                 // A panicking model (e.g. CUDA out of memory at a large batch) answers every pending
@@ -325,6 +364,7 @@ impl Batcher {
             queue: Mutex::new(tx),
             preparer,
             camera_size,
+            reads_cameras,
             wants_wrist_camera,
             in_progress,
             replan_steps,
@@ -333,22 +373,8 @@ impl Batcher {
         })
     }
 
-    /// The moving average of this batcher's forward ms; 0 before its first forward.
-    fn recent_forward_ms(&self) -> f64 {
-        f64::from_bits(self.recent_forward_ms.load(Ordering::SeqCst))
-    }
-
-    /// The model's [`BatchModel::replan_steps`].
-    pub fn replan_steps(&self) -> usize {
-        self.replan_steps
-    }
-
-    pub fn stats(&self) -> BatchStats {
-        self.stats.lock().expect("stats").clone()
-    }
-
     /// Prepare the query here (the worker's thread), send it, wait for its forward's answer.
-    fn ask(&self, instruction: &str, episode_seed: u64, obs: &Observation) -> Result<(Vec<Action>, ActTiming), String> {
+    fn ask(&self, instruction: &str, episode_seed: u64, obs: &O) -> Result<(Vec<A>, ActTiming), String> {
         let t0 = Instant::now();
         let prepared = self.preparer.as_ref().map(|prepare| prepare(obs)).transpose()?;
         let prepare_ms = self.preparer.as_ref().map(|_| t0.elapsed().as_secs_f32() * 1e3);
@@ -364,11 +390,13 @@ impl Batcher {
     }
 }
 
-/// One worker's view of a model's shared [`Replicas`]: a [`Policy`] that executes `replan_steps`
-/// of each chunk the batch answers, each episode on the replica it started on.
-pub struct BatchedPolicy {
-    replicas: Arc<Replicas>,
-    chunker: ActionChunker,
+/// One worker's episodes on a model's shared [`Replicas`], whatever the benchmark: executes the
+/// model's `replan_steps` of each chunk its batch answers, each episode on the replica it started
+/// on. [`BatchedPolicy`] (LIBERO) and [`BatchedAlohaPolicy`] (ALOHA-sim) are this behind their
+/// benchmark's policy trait.
+struct ReplicaClient<O, A> {
+    replicas: Arc<Replicas<O, A>>,
+    chunker: ActionChunker<A>,
     instruction: String,
     episode_seed: u64,
     name: String,
@@ -377,20 +405,9 @@ pub struct BatchedPolicy {
     replica: Option<usize>,
 }
 
-impl BatchedPolicy {
-    /// On one batcher.
-    pub fn new(batcher: Arc<Batcher>, replan_steps: usize, name: &str) -> Self {
-        Self::with_replan(Replicas::single(batcher), replan_steps, name)
-    }
-
-    /// On `replicas`, executing each chunk as far as the model's [`BatchModel::replan_steps`].
-    pub fn on_replicas(replicas: Arc<Replicas>, name: &str) -> Self {
-        let replan = replicas.first().replan_steps();
-        Self::with_replan(replicas, replan, name)
-    }
-
-    fn with_replan(replicas: Arc<Replicas>, replan_steps: usize, name: &str) -> Self {
-        BatchedPolicy {
+impl<O: Clone + Send + 'static, A: Copy + Send + AsRef<[f32]> + AsMut<[f32]> + 'static> ReplicaClient<O, A> {
+    fn new(replicas: Arc<Replicas<O, A>>, replan_steps: usize, name: &str) -> Self {
+        ReplicaClient {
             replicas,
             chunker: ActionChunker::new(replan_steps),
             instruction: String::new(),
@@ -401,30 +418,13 @@ impl BatchedPolicy {
         }
     }
 
-    /// The replica serving the episode in progress.
-    pub fn replica(&self) -> Option<usize> {
-        self.replica
+    fn on_replicas(replicas: Arc<Replicas<O, A>>, name: &str) -> Self {
+        let replan = replicas.first().replan_steps();
+        Self::new(replicas, replan, name)
     }
 
-    fn batcher(&self) -> &Batcher {
+    fn batcher(&self) -> &Batcher<O, A> {
         &self.replicas.batchers[self.replica.unwrap_or(0)]
-    }
-}
-
-impl Drop for BatchedPolicy {
-    fn drop(&mut self) {
-        self.end_episode();
-    }
-}
-
-impl Policy for BatchedPolicy {
-    fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
-        self.chunker.set_ensemble(Some(ensemble));
-        Ok(())
-    }
-
-    fn queries_model(&self) -> bool {
-        self.chunker.needs_query()
     }
 
     fn reset(&mut self, instruction: &str, episode_seed: u64) {
@@ -436,21 +436,7 @@ impl Policy for BatchedPolicy {
         }
     }
 
-    fn end_episode(&mut self) {
-        if let Some(replica) = self.replica.take() {
-            self.replicas.end_episode(replica);
-        }
-    }
-
-    fn camera_size(&self) -> Option<u32> {
-        self.replicas.first().camera_size.filter(|_| self.chunker.needs_query())
-    }
-
-    fn wants_wrist_camera(&self) -> bool {
-        self.replicas.first().wants_wrist_camera
-    }
-
-    fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
+    fn act(&mut self, obs: &O) -> Result<A, PolicyError> {
         let err = |detail: String| PolicyError { policy: self.name.clone(), detail };
         self.last_timing = None;
         if self.chunker.needs_query() {
@@ -460,9 +446,114 @@ impl Policy for BatchedPolicy {
         }
         self.chunker.next_action().ok_or_else(|| err("no action queued".into()))
     }
+}
+
+impl<O, A> ReplicaClient<O, A> {
+    fn end_episode(&mut self) {
+        if let Some(replica) = self.replica.take() {
+            self.replicas.end_episode(replica);
+        }
+    }
+}
+
+impl<O, A> Drop for ReplicaClient<O, A> {
+    fn drop(&mut self) {
+        self.end_episode();
+    }
+}
+
+/// One worker's view of a model's shared [`Replicas`]: a LIBERO [`Policy`] that executes
+/// `replan_steps` of each chunk the batch answers, each episode on the replica it started on.
+pub struct BatchedPolicy(ReplicaClient<Observation, Action>);
+
+impl BatchedPolicy {
+    /// On one batcher.
+    pub fn new(batcher: Arc<Batcher>, replan_steps: usize, name: &str) -> Self {
+        BatchedPolicy(ReplicaClient::new(Replicas::single(batcher), replan_steps, name))
+    }
+
+    /// On `replicas`, executing each chunk as far as the model's [`BatchModel::replan_steps`].
+    pub fn on_replicas(replicas: Arc<Replicas>, name: &str) -> Self {
+        BatchedPolicy(ReplicaClient::on_replicas(replicas, name))
+    }
+
+    /// The replica serving the episode in progress.
+    pub fn replica(&self) -> Option<usize> {
+        self.0.replica
+    }
+}
+
+impl Policy for BatchedPolicy {
+    fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
+        self.0.chunker.set_ensemble(Some(ensemble));
+        Ok(())
+    }
+
+    fn queries_model(&self) -> bool {
+        self.0.chunker.needs_query()
+    }
+
+    fn reset(&mut self, instruction: &str, episode_seed: u64) {
+        self.0.reset(instruction, episode_seed);
+    }
+
+    fn end_episode(&mut self) {
+        self.0.end_episode();
+    }
+
+    fn camera_size(&self) -> Option<u32> {
+        self.0.replicas.first().camera_size.filter(|_| self.0.chunker.needs_query())
+    }
+
+    fn wants_wrist_camera(&self) -> bool {
+        self.0.replicas.first().wants_wrist_camera
+    }
+
+    fn act(&mut self, obs: &Observation) -> Result<Action, PolicyError> {
+        self.0.act(obs)
+    }
 
     fn last_timing(&self) -> Option<ActTiming> {
-        self.last_timing
+        self.0.last_timing
+    }
+}
+
+/// [`BatchedPolicy`]'s ALOHA-sim form: an [`AlohaPolicy`] whose episodes share the calls of a
+/// model's replicas. The request's instruction is gym-aloha's task name (`env.task`, what
+/// lerobot-eval passes as an ALOHA observation's `task`); an episode starts on a replica at its
+/// first query and ends when the worker drops the policy.
+pub struct BatchedAlohaPolicy(ReplicaClient<AlohaObservation, AlohaAction>);
+
+impl BatchedAlohaPolicy {
+    pub fn on_replicas(replicas: Arc<Replicas<AlohaObservation, AlohaAction>>, name: &str) -> Self {
+        BatchedAlohaPolicy(ReplicaClient::on_replicas(replicas, name))
+    }
+}
+
+impl AlohaPolicy for BatchedAlohaPolicy {
+    fn reset(&mut self, episode_seed: u64) {
+        // the task is known at the first observation; the replica is chosen now
+        self.0.reset("", episode_seed);
+    }
+
+    fn act(&mut self, obs: &AlohaObservation) -> Result<AlohaAction, PolicyError> {
+        if self.0.instruction != obs.task {
+            self.0.instruction = obs.task.to_string();
+        }
+        self.0.act(obs)
+    }
+
+    fn wants_top_camera(&self) -> bool {
+        self.0.replicas.first().reads_cameras && self.0.chunker.needs_query()
+    }
+
+    fn set_ensemble(&mut self, ensemble: crate::ensembling::Ensemble) -> Result<(), String> {
+        self.0.chunker.set_ensemble(Some(ensemble));
+        Ok(())
+    }
+
+    fn queries_model(&self) -> bool {
+        self.0.chunker.needs_query()
     }
 }
 

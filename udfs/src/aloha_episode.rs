@@ -163,7 +163,8 @@ pub fn run_aloha_episode(
                 } else {
                     None
                 };
-                let obs = AlohaObservation { policy_step: p, agent_pos, top, script: script.clone() };
+                let obs =
+                    AlohaObservation { task: task.name(), policy_step: p, agent_pos, top, script: script.clone() };
                 let t0 = Instant::now();
                 let action: Result<AlohaAction, PolicyError> = policy.act(&obs);
                 cost.policy_ms = t0.elapsed().as_secs_f32() * 1e3;

@@ -13,12 +13,14 @@
 //! first `executed_steps` of each chunk the host returns), and `devices=cuda:0,cuda:1` starts one
 //! host per device. A host that crashes, hangs past `timeout_s` or answers nonsense turns the
 //! episodes of that call into error rows and is started again for the next call; a policy that
-//! raises costs only that call's episodes (the host keeps serving).
+//! raises costs only that call's episodes (the host keeps serving). On ALOHA-sim the same host
+//! is a [`PythonAlohaHost`]: gym-aloha's `top` camera and `agent_pos` in, 14-D actions out.
 
 pub mod frames;
 mod process;
 
 use crate::Action;
+use crate::aloha::{AlohaAction, AlohaObservation};
 use crate::batching::{BatchModel, Request};
 use crate::placement::ModelDevice;
 use frames::{Array, Frame};
@@ -169,16 +171,20 @@ fn host_script() -> Result<PathBuf, String> {
 /// What the policy's `describe()` asks of the pipeline, and the rest of it for the manifest.
 #[derive(Debug, Clone)]
 pub struct Description {
+    /// LIBERO's cameras' square size (`agentview`, `wrist`); None on ALOHA-sim.
     pub camera_size: Option<u32>,
     pub wrist: bool,
+    /// ALOHA-sim's `top` camera (480 × 640, its only one).
+    pub top: bool,
     pub action_dim: usize,
     pub executed_steps: usize,
     pub identity: Value,
 }
 
 impl Description {
-    /// From the host's `ready` frame, checked against the benchmark's action width.
-    fn from_ready(ready: &Frame, benchmark_action_dim: usize) -> Result<Self, String> {
+    /// From the host's `ready` frame, checked against the benchmark's cameras and action width.
+    fn from_ready(ready: &Frame, benchmark: &str) -> Result<Self, String> {
+        let benchmark_action_dim = benchmark_action_dim(benchmark);
         let protocol = ready.header.get("protocol").and_then(Value::as_u64);
         if protocol != Some(PROTOCOL) {
             return Err(format!("the host speaks protocol {protocol:?}, this pipeline {PROTOCOL}"));
@@ -193,10 +199,17 @@ impl Description {
             .and_then(Value::as_array)
             .map(|c| c.iter().filter_map(Value::as_str).collect())
             .unwrap_or_default();
-        let camera_size = match (cameras.is_empty(), observation.get("camera_size").and_then(Value::as_u64)) {
-            (true, _) => None,
-            (false, Some(s)) if (16..=2048).contains(&s) => Some(s as u32),
-            (false, other) => {
+        let known: &[&str] = if benchmark == "aloha_sim" { &["top"] } else { &["agentview", "wrist"] };
+        if let Some(c) = cameras.iter().find(|c| !known.contains(c)) {
+            return Err(format!(
+                "describe()[\"observation\"][\"cameras\"] names {c:?}, and {benchmark} renders {known:?}"
+            ));
+        }
+        let square = cameras.iter().any(|c| *c != "top");
+        let camera_size = match (square, observation.get("camera_size").and_then(Value::as_u64)) {
+            (false, _) => None,
+            (true, Some(s)) if (16..=2048).contains(&s) => Some(s as u32),
+            (true, other) => {
                 return Err(format!(
                     "describe()[\"observation\"][\"camera_size\"] is {other:?}: a policy that reads cameras names their square size (16..2048)"
                 ));
@@ -213,7 +226,14 @@ impl Description {
             None => 1,
             Some(n) => return Err(format!("describe()[\"executed_steps\"] is {n}; it must be >= 1")),
         };
-        Ok(Description { camera_size, wrist: cameras.contains(&"wrist"), action_dim, executed_steps, identity: d })
+        Ok(Description {
+            camera_size,
+            wrist: cameras.contains(&"wrist"),
+            top: cameras.contains(&"top"),
+            action_dim,
+            executed_steps,
+            identity: d,
+        })
     }
 }
 
@@ -243,10 +263,9 @@ impl PythonHostModel {
     }
 
     fn start_new(command: HostCommand, config: &PythonHostConfig) -> Result<Self, String> {
-        let action_dim = benchmark_action_dim(&config.benchmark);
         let (host, ready) =
             HostProcess::start(&command, config.load_timeout).map_err(|e| with_fix(&e, &config.target))?;
-        let description = Description::from_ready(&ready, action_dim)?;
+        let description = Description::from_ready(&ready, &config.benchmark)?;
         Ok(PythonHostModel {
             command,
             host: Some(host),
@@ -260,12 +279,18 @@ impl PythonHostModel {
         &self.description
     }
 
-    fn call(&mut self, requests: &[Request]) -> Result<Vec<Vec<Action>>, CallError> {
+    /// One call: `frame` (the batch's observations) out, each episode's chunk of `D`-wide actions
+    /// back.
+    fn call<const D: usize>(
+        &mut self,
+        frame: Result<Frame, String>,
+        batch: usize,
+    ) -> Result<Vec<Vec<[f32; D]>>, CallError> {
         if self.host.is_none() {
             let (host, _) = HostProcess::start(&self.command, self.load_timeout).map_err(CallError::HostDied)?;
             self.host = Some(host);
         }
-        let frame = observation_frame(requests, &self.description).map_err(CallError::Policy)?;
+        let frame = frame.map_err(CallError::Policy)?;
         let host = self.host.as_mut().expect("started above");
         let reply = match host.request(&frame, self.call_timeout, "waiting for the actions") {
             Ok(r) => r,
@@ -275,7 +300,7 @@ impl PythonHostModel {
             }
         };
         match reply.op() {
-            "actions" => split_actions(&reply, requests.len(), self.description.action_dim).map_err(|e| {
+            "actions" => split_actions::<D>(&reply, batch).map_err(|e| {
                 self.host = None; // an answer we cannot read: start afresh rather than trust the next
                 CallError::HostDied(format!("the Python host {} answered malformed actions: {e}", self.command.label))
             }),
@@ -298,16 +323,22 @@ enum CallError {
     HostDied(String),
 }
 
+/// Each request's chunk, or every request's share of the call's failure.
+fn answers<A>(result: Result<Vec<Vec<A>>, CallError>, batch: usize) -> Vec<Result<Vec<A>, String>> {
+    match result {
+        Ok(chunks) => chunks.into_iter().map(Ok).collect(),
+        Err(CallError::Policy(e)) => (0..batch).map(|_| Err(e.clone())).collect(),
+        Err(CallError::HostDied(e)) => {
+            let e = format!("{e}\n(these episodes are error rows; the host is started again for the next ones)");
+            (0..batch).map(|_| Err(e.clone())).collect()
+        }
+    }
+}
+
 impl BatchModel for PythonHostModel {
     fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {
-        match self.call(requests) {
-            Ok(chunks) => chunks.into_iter().map(Ok).collect(),
-            Err(CallError::Policy(e)) => requests.iter().map(|_| Err(e.clone())).collect(),
-            Err(CallError::HostDied(e)) => {
-                let e = format!("{e}\n(these episodes are error rows; the host is started again for the next ones)");
-                requests.iter().map(|_| Err(e.clone())).collect()
-            }
-        }
+        let frame = observation_frame(requests, &self.description);
+        answers(self.call::<7>(frame, requests.len()), requests.len())
     }
 
     fn camera_size(&self) -> Option<u32> {
@@ -320,6 +351,35 @@ impl BatchModel for PythonHostModel {
 
     fn replan_steps(&self) -> usize {
         self.description.executed_steps
+    }
+}
+
+/// A host serving ALOHA-sim episodes: the batch's `top` images and `agent_pos` out, 14-D actions
+/// back (started with the benchmark `aloha_sim`, so its `describe()` was checked against it).
+pub struct PythonAlohaHost(PythonHostModel);
+
+impl PythonAlohaHost {
+    pub fn start(config: &PythonHostConfig, device: Option<ModelDevice>) -> Result<Self, String> {
+        PythonHostModel::start(config, device).map(PythonAlohaHost)
+    }
+}
+
+impl BatchModel<AlohaObservation, AlohaAction> for PythonAlohaHost {
+    fn predict_batch(&mut self, requests: &[Request<AlohaObservation>]) -> Vec<Result<Vec<AlohaAction>, String>> {
+        let frame = aloha_observation_frame(requests, &self.0.description);
+        answers(self.0.call::<14>(frame, requests.len()), requests.len())
+    }
+
+    fn reads_cameras(&self) -> bool {
+        self.0.description.top
+    }
+
+    fn wants_wrist_camera(&self) -> bool {
+        false
+    }
+
+    fn replan_steps(&self) -> usize {
+        self.0.description.executed_steps
     }
 }
 
@@ -392,9 +452,41 @@ fn observation_frame(requests: &[Request], d: &Description) -> Result<Frame, Str
     Ok(frame)
 }
 
+/// ALOHA-sim's batch as the host reads it: per episode its task (gym-aloha's name), seed and
+/// policy step; `agent_pos` (B, 14) and, when the policy reads it, `top` (B, 480, 640, 3) uint8
+/// upright, as gym-aloha's `pixels_agent_pos` observation holds them.
+fn aloha_observation_frame(requests: &[Request<AlohaObservation>], d: &Description) -> Result<Frame, String> {
+    let episodes: Vec<Value> = requests
+        .iter()
+        .map(|r| json!({"task": r.instruction, "seed": r.episode_seed, "policy_step": r.obs.policy_step}))
+        .collect();
+    let mut frame = Frame::new(json!({"op": "act", "episodes": episodes}));
+    let b = requests.len();
+    let agent_pos: Vec<f64> = requests.iter().flat_map(|r| r.obs.agent_pos).collect();
+    frame.arrays.insert("agent_pos".into(), Array::f64(vec![b, agent_pos.len() / b.max(1)], &agent_pos));
+    if d.top {
+        let first = requests.first().and_then(|r| r.obs.top.as_ref()).ok_or("the rollout sent no top image")?;
+        let (w, h) = (first.width as usize, first.height as usize);
+        let mut bytes = Vec::with_capacity(b * w * h * 3);
+        for r in requests {
+            let top = r.obs.top.as_ref().ok_or("the rollout sent no top image")?;
+            if (top.width as usize, top.height as usize) != (w, h) || top.rgb.len() != w * h * 3 {
+                return Err(format!(
+                    "the top images of one call differ in size ({}x{} and {w}x{h})",
+                    top.width, top.height
+                ));
+            }
+            bytes.extend_from_slice(&top.rgb);
+        }
+        frame.arrays.insert("top".into(), Array::u8(vec![b, h, w, 3], bytes));
+    }
+    Ok(frame)
+}
+
 /// The reply's `actions` (B, T, D) float32 as one chunk per episode, checked: the batch size,
 /// the action width, at least one action, every number finite.
-fn split_actions(reply: &Frame, batch: usize, action_dim: usize) -> Result<Vec<Vec<Action>>, String> {
+fn split_actions<const D: usize>(reply: &Frame, batch: usize) -> Result<Vec<Vec<[f32; D]>>, String> {
+    let action_dim = D;
     let actions = reply.arrays.get("actions").ok_or("no \"actions\" array")?;
     let [b, t, d] = actions.shape[..] else {
         return Err(format!("actions of shape {:?}, expected (batch, steps, action dim)", actions.shape));
@@ -411,12 +503,9 @@ fn split_actions(reply: &Frame, batch: usize, action_dim: usize) -> Result<Vec<V
             (i / d) % t
         ));
     }
-    if action_dim != 7 {
-        return Err(format!("{action_dim}-D actions go to ALOHA-sim's seam, not LIBERO's"));
-    }
     Ok(values
         .chunks_exact(t * d)
-        .map(|episode| episode.chunks_exact(d).map(|a| <[f32; 7]>::try_from(a).expect("d == 7")).collect())
+        .map(|episode| episode.chunks_exact(d).map(|a| <[f32; D]>::try_from(a).expect("d == D")).collect())
         .collect())
 }
 
@@ -438,4 +527,31 @@ pub fn resolve_identity(config: &PythonHostConfig, device: Option<ModelDevice>) 
     });
     PARKED.lock().map_err(|_| "the parked hosts' lock is poisoned".to_string())?.push(model);
     Ok(identity)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ready(describe: Value) -> Frame {
+        Frame::new(json!({"op": "ready", "protocol": PROTOCOL, "describe": describe}))
+    }
+
+    #[test]
+    fn a_description_names_the_cameras_its_benchmark_renders() {
+        // ALOHA-sim's top camera has its own size: no camera_size needed
+        let aloha = ready(json!({"observation": {"cameras": ["top"]}, "action_dim": 14, "executed_steps": 10}));
+        let d = Description::from_ready(&aloha, "aloha_sim").unwrap();
+        assert!(d.top && !d.wrist && d.camera_size.is_none());
+        assert_eq!((d.action_dim, d.executed_steps), (14, 10));
+        assert!(Description::from_ready(&aloha, "libero").unwrap_err().contains("names \"top\", and libero renders"));
+        let libero = ready(json!({"observation": {"cameras": ["agentview", "wrist"], "camera_size": 360}}));
+        let d = Description::from_ready(&libero, "libero").unwrap();
+        assert_eq!((d.camera_size, d.wrist, d.top, d.action_dim), (Some(360), true, false, 7));
+        assert!(Description::from_ready(&libero, "aloha_sim").unwrap_err().contains("names \"agentview\""));
+        let unsized_ = ready(json!({"observation": {"cameras": ["agentview"]}}));
+        assert!(Description::from_ready(&unsized_, "libero").unwrap_err().contains("camera_size"));
+        let seven = ready(json!({"observation": {"cameras": ["top"]}, "action_dim": 7}));
+        assert!(Description::from_ready(&seven, "aloha_sim").unwrap_err().contains("7-D, and this benchmark takes 14-D"));
+    }
 }

@@ -427,6 +427,7 @@ if [ "$TESTS" = 1 ]; then
   for_missing golden.py "$GOLDEN" "$CANONICAL,$PRO_TEST_TASKS" >/dev/null
   ln -sfn "$GOLDEN" data/golden
 
+  # (--also-size 360: task 0 of each suite also at lerobot-eval's camera size, from the same envs)
   step "reference camera frames for the render-parity tests (MuJoCo 3.3.7, and 3.2.3 for the published look)"
   VENV323_KEY=$(cat scripts/setup/reference_venv.sh scripts/setup/reference_venv_mujoco323.sh | sha256sum | cut -c1-12)
   VENV323="$CACHE/ref-venv-mujoco323-$VENV323_KEY"
@@ -439,9 +440,9 @@ if [ "$TESTS" = 1 ]; then
     rm -rf "$FRAMES"
     (cd scripts/reference &&
       "$VENV/bin/python" frames.py "$FRAMES/mujoco-3.3.7" --suites "$CANONICAL" --tasks 0 --inits 0,1,2 --steps 0,40 \
-        --golden "$GOLDEN" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2) &&
+        --golden "$GOLDEN" --also-size 360 --also-tasks 0 >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2) &&
       "$VENV323/bin/python" frames.py "$FRAMES/mujoco-3.2.3" --suites "$CANONICAL" --tasks all --inits 0 --steps 0 \
-        >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2) &&
+        --also-size 360 --also-tasks 0 >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2) &&
       "$PRO_VENV/bin/python" frames.py "$FRAMES/mujoco-3.3.7" --tasks "$PRO_TEST_TASKS" --inits 0 --steps 0,40 \
         --golden "$GOLDEN" >/dev/null 2> >(grep -v "WARNING\|^\[info\]" >&2))
     touch "$FRAMES/.complete"

@@ -4,18 +4,26 @@
 //! (task 0 of each suite, init states 0–2, the init state and the golden state after step 40; and
 //! the LIBERO-PRO test tasks, init state 0, rendered by the PRO oracle venv);
 //! `data/frames/mujoco-3.2.3/` holds frames the reference env rendered on the published stack's
-//! MuJoCo (every task, init state 0). Both are made at set-up by `scripts/reference/frames.py`.
+//! MuJoCo (every task, init state 0). Both are 256 × 256 and hold, in `360/`, task 0 of each
+//! suite at init state 0 rendered at lerobot-eval's 360 × 360 (its LIBERO env's camera size; what
+//! `lerobot:` policies ask for), the same states' steps. All are made at set-up by
+//! `scripts/reference/frames.py`.
 
 use libero_e2e::{bundles, golden_dir, read_npy, read_png, repo_root};
 use libero_sim::SimError;
 use libero_sim::env::LiberoEnv;
 use libero_sim::gl::GlContext;
-use libero_sim::render::{Look, Orientation, RenderOptions};
+use libero_sim::render::{Frame, Look, Orientation, Quality, RenderOptions};
+use libero_udfs::policy_cameras::{AGENTVIEW, PolicyCameras, WRIST};
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
-/// One reference frame: `<suite>__<NN>__init<k>__s<SSS>__<camera>.png`.
+/// The camera size lerobot-eval renders LIBERO at: lerobot 0.6.1's `LiberoEnv` config overrides
+/// the env's 256 with 360 × 360 (`envs/configs.py`), and its policies ask the pipeline for that.
+const LEROBOT_SIZE: u32 = 360;
+
+/// One reference frame: `[<size>/]<suite>__<NN>__init<k>__s<SSS>__<camera>.png`.
 struct ReferenceFrame {
     path: PathBuf,
     suite: String,
@@ -23,12 +31,35 @@ struct ReferenceFrame {
     init: usize,
     step: usize,
     camera: String,
+    /// Rendered at lerobot-eval's size (`LEROBOT_SIZE`, the frames in `360/`): ours are rendered as
+    /// the pipeline renders a policy's cameras at that size. Otherwise the set-up's 256 × 256.
+    lerobot_size: bool,
 }
 
+impl ReferenceFrame {
+    fn name(&self) -> String {
+        let stem = self.path.file_stem().unwrap().to_string_lossy().into_owned();
+        if self.lerobot_size { format!("{LEROBOT_SIZE}/{stem}") } else { stem }
+    }
+}
+
+/// The reference frames of `stack`: the set-up's 256 × 256 ones and those at lerobot-eval's size.
 fn reference_frames(stack: &str) -> Vec<ReferenceFrame> {
     let dir = repo_root().join("data/frames").join(stack);
     assert!(dir.exists(), "no reference frames at {}: run ./setup.sh --tests", dir.display());
-    let mut out: Vec<ReferenceFrame> = std::fs::read_dir(&dir)
+    let lerobot = dir.join(LEROBOT_SIZE.to_string());
+    assert!(
+        lerobot.exists(),
+        "no {LEROBOT_SIZE} x {LEROBOT_SIZE} reference frames at {}: run ./setup.sh --tests",
+        lerobot.display()
+    );
+    let mut out = frames_in(&dir, false);
+    out.extend(frames_in(&lerobot, true));
+    out
+}
+
+fn frames_in(dir: &Path, lerobot_size: bool) -> Vec<ReferenceFrame> {
+    let mut out: Vec<ReferenceFrame> = std::fs::read_dir(dir)
         .unwrap()
         .filter_map(|e| {
             let path = e.unwrap().path();
@@ -45,6 +76,7 @@ fn reference_frames(stack: &str) -> Vec<ReferenceFrame> {
                 step: step.trim_start_matches('s').parse().unwrap(),
                 camera: camera.into(),
                 path,
+                lerobot_size,
             })
         })
         .collect();
@@ -53,9 +85,23 @@ fn reference_frames(stack: &str) -> Vec<ReferenceFrame> {
     out
 }
 
-/// Render every reference frame's state with `look`; returns (frame name, PSNR, our mean brightness,
-/// theirs) per frame. Tasks are compiled once each.
-fn render_like(frames: &[ReferenceFrame], look: Look) -> Vec<(String, f64, f64, f64)> {
+/// One frame compared: its name, PSNR, largest absolute difference of a channel, our mean
+/// brightness and the reference's.
+#[derive(Debug)]
+struct Compared {
+    name: String,
+    psnr: f64,
+    max_diff: u8,
+    ours: f64,
+    theirs: f64,
+}
+
+/// Render every reference frame's state with `look`, tasks compiled once each. The 256 × 256
+/// frames through a renderer with the scene's own offscreen buffer (as the reference's); those at
+/// lerobot-eval's 360 × 360 as the pipeline renders a policy's cameras at that size: in the
+/// default look through `PolicyCameras` itself (a 360 × 360 buffer, on a rollout worker's GL
+/// thread), in another look with its options.
+fn render_like(frames: &[ReferenceFrame], look: Look) -> Vec<Compared> {
     let set = bundles();
     let gl = Rc::new(GlContext::new().unwrap());
     let mut by_task: BTreeMap<(String, u32), Vec<&ReferenceFrame>> = BTreeMap::new();
@@ -63,6 +109,7 @@ fn render_like(frames: &[ReferenceFrame], look: Look) -> Vec<(String, f64, f64, 
         by_task.entry((f.suite.clone(), f.task_id)).or_default().push(f);
     }
     let mut out = Vec::new();
+    let mut lerobot_time = std::time::Duration::ZERO;
     for ((suite, task_id), frames) in by_task {
         let bundle = set.load(suite.parse().unwrap(), task_id).unwrap();
         let mut env = LiberoEnv::new(&bundle).unwrap();
@@ -70,6 +117,9 @@ fn render_like(frames: &[ReferenceFrame], look: Look) -> Vec<(String, f64, f64, 
         let other = if look == Look::Mujoco323 { Look::Mujoco337 } else { Look::Mujoco323 };
         drop(env.renderer(gl.clone(), RenderOptions { look: other, ..Default::default() }).unwrap());
         let mut renderer = env.renderer(gl.clone(), RenderOptions { look, ..Default::default() }).unwrap();
+        let mut at_lerobot_size = None;
+        let mut policy_cameras = None;
+        let mut captured = None;
         for f in frames {
             let theirs = read_png(&f.path, Orientation::Reference);
             let poses = bundle.fixture_poses(0, f.init).unwrap().clone();
@@ -80,15 +130,76 @@ fn render_like(frames: &[ReferenceFrame], look: Look) -> Vec<(String, f64, f64, 
                 read_npy(&dir.join("states.npy")).row(f.step - 1).to_vec()
             };
             env.reset_to(&poses, &state).unwrap();
-            let ours = env.render(&mut renderer, &f.camera, theirs.width, theirs.height).unwrap();
-            let name = f.path.file_stem().unwrap().to_string_lossy().into_owned();
-            out.push((name, ours.psnr(&theirs), ours.mean_brightness(), theirs.mean_brightness()));
+            let start = std::time::Instant::now();
+            let ours = if !f.lerobot_size {
+                env.render(&mut renderer, &f.camera, theirs.width, theirs.height).unwrap()
+            } else if look == Look::Mujoco323 {
+                // `PolicyCameras`' look; both cameras of a state in one capture, as an episode's step takes them
+                let at = (f.init, f.step);
+                if captured.as_ref().is_none_or(|(state, _)| *state != at) {
+                    let cameras =
+                        policy_cameras.get_or_insert_with(|| PolicyCameras::new(&mut env, LEROBOT_SIZE).unwrap());
+                    captured = Some((at, cameras.capture(&mut env, true).unwrap()));
+                }
+                let images = &captured.as_ref().unwrap().1;
+                let image = match f.camera.as_str() {
+                    AGENTVIEW => &images.agentview,
+                    WRIST => &images.wrist,
+                    other => panic!("a policy camera {other}"),
+                };
+                let (width, height, rgb) = (image.width, image.height, image.rgb.clone());
+                Frame { width, height, rgb, orientation: Orientation::Reference }
+            } else {
+                let options = RenderOptions {
+                    look,
+                    quality: Quality::Reference,
+                    max_width: LEROBOT_SIZE,
+                    max_height: LEROBOT_SIZE,
+                };
+                let r = at_lerobot_size.get_or_insert_with(|| env.renderer(gl.clone(), options).unwrap());
+                env.render(r, &f.camera, LEROBOT_SIZE, LEROBOT_SIZE).unwrap()
+            };
+            if f.lerobot_size {
+                lerobot_time += start.elapsed();
+            }
+            assert_eq!((ours.width, ours.height), (theirs.width, theirs.height), "{}", f.name());
+            let max_diff = ours.rgb.iter().zip(&theirs.rgb).map(|(a, b)| a.abs_diff(*b)).max().unwrap();
+            let (psnr, ours, theirs) = (ours.psnr(&theirs), ours.mean_brightness(), theirs.mean_brightness());
+            out.push(Compared { name: f.name(), psnr, max_diff, ours, theirs });
         }
     }
-    for (name, psnr, ours, theirs) in &out {
-        println!("{name:<60} PSNR {psnr:>6.1} dB   brightness ours {ours:>6.1} reference {theirs:>6.1}");
+    println!("rendering at {LEROBOT_SIZE} x {LEROBOT_SIZE} (renderers made, frames drawn): {lerobot_time:.2?}");
+    for c in &out {
+        println!(
+            "{:<64} PSNR {:>6.1} dB   max diff {:>3}   brightness ours {:>6.1} reference {:>6.1}",
+            c.name, c.psnr, c.max_diff, c.ours, c.theirs
+        );
     }
     out
+}
+
+/// The frames at lerobot-eval's size, after checking that there are `n` of them, task 0 of each
+/// canonical suite: prints their figures.
+fn at_lerobot_size(results: &[Compared], n: usize) -> Vec<&Compared> {
+    let at: Vec<&Compared> = results.iter().filter(|c| c.name.starts_with(&format!("{LEROBOT_SIZE}/"))).collect();
+    assert_eq!(at.len(), n, "frames at {LEROBOT_SIZE} x {LEROBOT_SIZE} (./setup.sh --tests renders them)");
+    for camera in [AGENTVIEW, WRIST] {
+        let of: Vec<_> = at.iter().filter(|c| c.name.ends_with(camera)).collect();
+        assert_eq!(of.len(), n / 2, "{camera} frames at {LEROBOT_SIZE}");
+        for suite in ["libero_spatial", "libero_object", "libero_goal", "libero_10"] {
+            assert!(
+                of.iter().any(|c| c.name.contains(&format!("/{suite}__00__"))),
+                "no {suite} {camera} at {LEROBOT_SIZE}"
+            );
+        }
+    }
+    let worst = at.iter().map(|c| c.psnr).fold(f64::INFINITY, f64::min);
+    let max_diff = at.iter().map(|c| c.max_diff).max().unwrap();
+    let identical = at.iter().filter(|c| c.psnr.is_infinite()).count();
+    println!(
+        "at {LEROBOT_SIZE} x {LEROBOT_SIZE}: {identical} of {n} frames identical, worst PSNR {worst:.1} dB, largest difference {max_diff}"
+    );
+    at
 }
 
 #[test]
@@ -101,9 +212,11 @@ fn frames_match_the_reference_env_on_the_linked_mujoco() {
         assert_eq!(n, 4, "{suite} task {task}: 2 cameras x steps 0 and 40 (./setup.sh renders them)");
     }
     let results = render_like(&frames, Look::Mujoco337);
-    let identical = results.iter().filter(|r| r.1.is_infinite()).count();
+    let identical = results.iter().filter(|r| r.psnr.is_infinite()).count();
     println!("{identical} of {} frames identical to the reference", results.len());
-    let bad: Vec<_> = results.iter().filter(|r| r.1 < 40.0).collect();
+    // at lerobot-eval's 360 x 360: task 0 of each suite, init state 0, steps 0 and 40, both cameras
+    at_lerobot_size(&results, 16);
+    let bad: Vec<_> = results.iter().filter(|r| r.psnr < 40.0).collect();
     assert!(bad.is_empty(), "frames below 40 dB against the reference (same MuJoCo): {bad:?}");
 }
 
@@ -112,15 +225,18 @@ fn the_default_look_is_the_published_stacks_on_every_task() {
     assert_eq!(Look::default(), Look::Mujoco323);
     let frames = reference_frames("mujoco-3.2.3");
     let results = render_like(&frames, Look::default());
-    let worst = results.iter().map(|r| r.1).fold(f64::INFINITY, f64::min);
+    let worst = results.iter().map(|r| r.psnr).fold(f64::INFINITY, f64::min);
     println!("worst PSNR against MuJoCo 3.2.3 frames: {worst:.1} dB over {} frames", results.len());
-    let bad: Vec<_> = results.iter().filter(|r| r.1 < 40.0).collect();
+    // at lerobot-eval's 360 x 360, through the pipeline's `PolicyCameras`: task 0 of each suite,
+    // init state 0, both cameras
+    at_lerobot_size(&results, 8);
+    let bad: Vec<_> = results.iter().filter(|r| r.psnr < 40.0).collect();
     assert!(bad.is_empty(), "frames below 40 dB against the published stack (MuJoCo 3.2.3): {bad:?}");
     // The control: without the look, libero_object is visibly darker than the published frames.
     let object: Vec<ReferenceFrame> =
-        frames.into_iter().filter(|f| f.suite == "libero_object" && f.camera == "agentview").collect();
+        frames.into_iter().filter(|f| f.suite == "libero_object" && f.camera == AGENTVIEW && !f.lerobot_size).collect();
     let raw = render_like(&object, Look::Mujoco337);
-    let darker = raw.iter().filter(|r| r.1 < 30.0 && r.2 < r.3 - 10.0).count();
+    let darker = raw.iter().filter(|r| r.psnr < 30.0 && r.ours < r.theirs - 10.0).count();
     assert!(darker > raw.len() / 2, "MuJoCo 3.3.7's own look should differ on libero_object: {raw:?}");
 }
 

@@ -90,6 +90,11 @@ pub trait BatchModel<O = Observation, A = Action>: Send + 'static {
     fn replan_steps(&self) -> usize {
         1
     }
+    /// The device the replica runs on (`cuda:1`), named in the error rows of a forward that
+    /// failed as a whole, so a user sees which GPU failed (`scripts/bench/gpu_failure.sh`).
+    fn device_label(&self) -> Option<String> {
+        None
+    }
 }
 
 /// One shared set of `count` replicas per name (e.g. a model's policy string) for the whole
@@ -207,6 +212,23 @@ impl<O, A> Replicas<O, A> {
     }
 }
 
+/// The pauses before a forward that ran out of memory is tried again (15 s in all, then its
+/// episodes are error rows): long enough for a passing neighbour on the device, short enough that
+/// a device that stays full costs a batch's episodes, not the run's time.
+const OUT_OF_MEMORY_RETRIES: [Duration; 4] =
+    [Duration::from_secs(1), Duration::from_secs(2), Duration::from_secs(4), Duration::from_secs(8)];
+
+/// A caught panic's message, without the C++ stack libtorch's errors carry after it (not for an
+/// error row).
+fn panic_text(panic: &(dyn Any + Send)) -> String {
+    let msg = panic
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_else(|| "a panic without a message".into());
+    msg.split("\nException raised from").next().unwrap_or_default().trim_end().to_string()
+}
+
 /// Forward ids, distinct across every batcher of the process (the replicas of a model too), so that
 /// the stored steps count the forwards of a run ([`ActTiming::forward_id`]).
 static FORWARD_IDS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
@@ -283,11 +305,22 @@ impl<O, A> Batcher<O, A> {
 
 impl<O: Clone + Send + 'static, A: Send + 'static> Batcher<O, A> {
     /// Start the batching thread for `model`.
-    pub fn start(mut model: impl BatchModel<O, A>, max_batch: usize, max_wait: Duration) -> Arc<Self> {
+    pub fn start(model: impl BatchModel<O, A>, max_batch: usize, max_wait: Duration) -> Arc<Self> {
+        Self::start_retrying(model, max_batch, max_wait, &OUT_OF_MEMORY_RETRIES)
+    }
+
+    /// [`Batcher::start`], pausing `retries` before each new try of a forward that ran out of memory.
+    fn start_retrying(
+        mut model: impl BatchModel<O, A>,
+        max_batch: usize,
+        max_wait: Duration,
+        retries: &'static [Duration],
+    ) -> Arc<Self> {
         let (tx, rx): (Sender<Query<O, A>>, Receiver<_>) = channel();
         let stats = Arc::new(Mutex::new(BatchStats::default()));
         let (camera_size, replan_steps, preparer) = (model.camera_size(), model.replan_steps(), model.preparer());
         let (wants_wrist_camera, reads_cameras) = (model.wants_wrist_camera(), model.reads_cameras());
+        let on_device = model.device_label().map(|d| format!(" on {d}")).unwrap_or_default();
         let thread_stats = stats.clone();
         let in_progress = Arc::new(AtomicUsize::new(0));
         let thread_in_progress = in_progress.clone();
@@ -310,25 +343,45 @@ impl<O: Clone + Send + 'static, A: Send + 'static> Batcher<O, A> {
                     pending.into_iter().map(|(request, sent, reply)| (request, (sent, reply))).unzip();
                 let started = Instant::now();
                 // A panicking model (e.g. CUDA out of memory at a large batch) answers every pending
-                // request with its message instead of silently ending the batching thread.
+                // request with its message instead of silently ending the batching thread. Out of
+                // memory is often passing (another process on the device, a neighbour's peak), and a
+                // failed forward fails every episode in it: that one is tried again after a pause
+                // (OUT_OF_MEMORY_RETRIES), which on an H200 turned a 6 s hog from 61 of 80 episodes
+                // lost into none (`data/benchmarks/gpu-failure-h200-2026-11-29`).
                 let mut panicked = false;
-                let mut answers =
-                    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| model.predict_batch(&requests)))
-                        .unwrap_or_else(|panic| {
+                let mut answers = Vec::new();
+                for (attempt, pause) in retries.iter().copied().map(Some).chain([None]).enumerate() {
+                    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| model.predict_batch(&requests))) {
+                        Ok(a) => {
+                            answers = a;
+                            break;
+                        }
+                        Err(panic) => {
+                            let msg = panic_text(panic.as_ref());
+                            let n = requests.len();
+                            if let Some(pause) = pause.filter(|_| msg.contains("out of memory")) {
+                                eprintln!(
+                                    "the model{on_device} ran out of memory on a batch of {n}; trying again in {} s ({} of {})",
+                                    pause.as_secs(),
+                                    attempt + 1,
+                                    retries.len()
+                                );
+                                std::thread::sleep(pause);
+                                continue;
+                            }
                             panicked = true;
-                            let msg = panic
-                                .downcast_ref::<String>()
-                                .cloned()
-                                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
-                                .unwrap_or_else(|| "a panic without a message".into());
-                            let hint = "if it ran out of GPU memory, lower the policy's ?batch=N";
-                            requests
-                                .iter()
+                            let tries =
+                                if attempt > 0 { format!(", tried {} times", attempt + 1) } else { String::new() };
+                            let hint = "if it ran out of GPU memory, lower the policy's ?batch=N or free the device";
+                            answers = (0..n)
                                 .map(|_| {
-                                    Err(format!("the model failed on a batch of {}: {msg} ({hint})", requests.len()))
+                                    Err(format!("the model{on_device} failed on a batch of {n}{tries}: {msg} ({hint})"))
                                 })
-                                .collect()
-                        });
+                                .collect();
+                            break;
+                        }
+                    }
+                }
                 let forward_ms = started.elapsed().as_secs_f32() * 1e3;
                 answers.resize_with(replies.len(), || Err("the model returned fewer answers than requests".into()));
                 {
@@ -733,11 +786,11 @@ mod tests {
         assert!(stats[1].summary().starts_with(&format!("{on_fast} episodes, ")), "{}", stats[1].summary());
     }
 
-    /// Panics on every forward, at once.
+    /// Panics on every forward, at once (an error no pause cures: no retries).
     struct Broken;
     impl BatchModel for Broken {
         fn predict_batch(&mut self, _: &[Request]) -> Vec<Result<Vec<Action>, String>> {
-            panic!("CUDA out of memory (simulated)")
+            panic!("CUDA error: unspecified launch failure (simulated)")
         }
     }
 
@@ -788,12 +841,19 @@ mod tests {
         assert!(shared_batcher_stats().iter().all(|(n, _)| !n.starts_with("failing-test")));
     }
 
-    /// Panics on the instruction "panic".
+    /// Panics on the instruction "panic", as tch panics on libtorch's errors (message, then the
+    /// C++ stack); says it runs on cuda:1.
     struct Fragile;
     impl BatchModel for Fragile {
         fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {
-            assert!(requests.iter().all(|r| r.instruction != "panic"), "CUDA out of memory (simulated)");
+            assert!(
+                requests.iter().all(|r| r.instruction != "panic"),
+                "CUDA error: an illegal memory access was encountered (simulated)\nException raised from c10_cuda_check\nframe #0: c10::Error"
+            );
             requests.iter().map(|_| Ok(vec![[0.0; 7]])).collect()
+        }
+        fn device_label(&self) -> Option<String> {
+            Some("cuda:1".into())
         }
     }
 
@@ -803,9 +863,45 @@ mod tests {
         let mut p = BatchedPolicy::new(batcher.clone(), 1, "fragile");
         p.reset("panic", 0);
         let e = p.act(&Observation::default()).unwrap_err().to_string();
-        assert!(e.contains("CUDA out of memory (simulated)") && e.contains("batch=N"), "{e}");
+        assert!(e.contains("the model on cuda:1 failed on a batch of 1: CUDA error: an illegal memory access was encountered (simulated) ("), "{e}");
+        assert!(e.contains("batch=N") && !e.contains("Exception raised") && !e.contains("frame #0"), "{e}");
         p.reset("ok", 0);
         assert!(p.act(&Observation::default()).is_ok(), "the batching thread survived the panic");
+    }
+
+    /// Runs out of memory on its first `failures` forwards, then answers.
+    struct Crowded {
+        failures: usize,
+    }
+    impl BatchModel for Crowded {
+        fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {
+            if self.failures > 0 {
+                self.failures -= 1;
+                panic!("CUDA error: out of memory (simulated)");
+            }
+            requests.iter().map(|_| Ok(vec![[1.0; 7]])).collect()
+        }
+    }
+
+    #[test]
+    fn a_forward_that_runs_out_of_memory_is_tried_again_before_its_episodes_fail() {
+        // out of memory once: after a 1 s pause the same forward answers
+        let batcher = Batcher::start(Crowded { failures: 1 }, 4, Duration::from_millis(1));
+        let mut p = BatchedPolicy::new(batcher, 1, "crowded");
+        p.reset("task", 0);
+        let t0 = Instant::now();
+        assert_eq!(p.act(&Observation::default()).unwrap(), [1.0; 7]);
+        assert!(t0.elapsed() >= OUT_OF_MEMORY_RETRIES[0], "{:?}", t0.elapsed());
+        // out of memory at every try (pauses of 1 ms here): the episode fails, naming the tries,
+        // and the batcher serves on
+        const SHORT: [Duration; 4] = [Duration::from_millis(1); 4];
+        let batcher = Batcher::start_retrying(Crowded { failures: 5 }, 4, Duration::from_millis(1), &SHORT);
+        let mut p = BatchedPolicy::new(batcher, 1, "crowded");
+        p.reset("task", 0);
+        let e = p.act(&Observation::default()).unwrap_err().to_string();
+        assert!(e.contains("tried 5 times: CUDA error: out of memory (simulated)"), "{e}");
+        p.reset("task", 1);
+        assert_eq!(p.act(&Observation::default()).unwrap(), [1.0; 7]);
     }
 
     #[test]

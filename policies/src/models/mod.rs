@@ -38,6 +38,14 @@ use tch::{Device, Kind};
 /// CPU. A CUDA device this machine does not have is an error that says which it has and what
 /// became of libtorch's CUDA backend; a CPU the policy did not ask for is checked by
 /// [`cpu_fallback::check_cpu`] ([`model_device`]).
+/// A tch device as the policy strings write it (`cpu`, `cuda:1`).
+pub(crate) fn device_label(device: Device) -> String {
+    match device {
+        Device::Cuda(i) => format!("cuda:{i}"),
+        other => format!("{other:?}").to_lowercase(),
+    }
+}
+
 pub(crate) fn device_and_dtype(device: Option<ModelDevice>, model: &ModelSize) -> Result<(Device, Kind), String> {
     let device = model_device(device, model)?;
     Ok((device, if device.is_cuda() { Kind::BFloat16 } else { Kind::Float }))

@@ -336,6 +336,10 @@ impl TorchScriptModel {
 }
 
 impl BatchModel for TorchScriptModel {
+    fn device_label(&self) -> Option<String> {
+        Some(super::device_label(self.device))
+    }
+
     fn predict_batch(&mut self, requests: &[crate::batching::Request]) -> Vec<Result<Vec<Action>, String>> {
         let observations: Vec<&Observation> = requests.iter().map(|r| &r.obs).collect();
         match self.predict(&observations) {

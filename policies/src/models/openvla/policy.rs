@@ -157,6 +157,10 @@ impl OpenVlaBatchModel {
 }
 
 impl BatchModel for OpenVlaBatchModel {
+    fn device_label(&self) -> Option<String> {
+        Some(crate::models::device_label(self.model.device()))
+    }
+
     fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {
         // Each worker prepared its image ([`Self::preparer`]); a request whose image could not be
         // prepared fails alone, the rest share the forward.

@@ -309,6 +309,11 @@ pub struct OftModel {
 }
 
 impl OftModel {
+    /// Where the model runs (the backbone's device; the heads sit beside it).
+    pub fn device(&self) -> Device {
+        self.base.device()
+    }
+
     /// Loads `dir` on the CPU in f32.
     pub fn load(dir: &Path) -> Result<Self, OpenVlaError> {
         Self::load_on(dir, Device::Cpu, Kind::Float)

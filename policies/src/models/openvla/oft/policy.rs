@@ -197,6 +197,10 @@ impl OftBatchModel {
 }
 
 impl BatchModel for OftBatchModel {
+    fn device_label(&self) -> Option<String> {
+        Some(crate::models::device_label(self.model.device()))
+    }
+
     fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {
         let prepared: Vec<Result<&Prepared, String>> = requests
             .iter()

@@ -154,9 +154,9 @@ fn a_lerobot_checkpoint_runs_as_lerobot_eval_feeds_it_and_its_actions_are_lerobo
     assert!(tiny.contains("\"parameters\""), "{tiny}");
     let specs = specs(&d, "0,1", "2");
     let py = lerobot_python();
-    // 4 episodes on 4 workers sharing calls of up to 4 (waiting up to 2 s for each other: a loaded
+    // 4 episodes on 4 workers sharing calls of up to 4 (waiting up to 10 s for each other: a loaded
     // 2-core box drifts the episodes apart otherwise); 12 policy steps = 3 chunks of 5 executed.
-    let policy = format!("lerobot:{}?python={}&batch=4&wait_ms=2000", ckpt.display(), py.display());
+    let policy = format!("lerobot:{}?python={}&batch=4&wait_ms=10000", ckpt.display(), py.display());
     let (run, record, line) = recorded_run(&d, "smolvla", &specs, &policy, 12, 4, &[]);
 
     // The manifest: what ran, in which versions, on which files, fed how.
@@ -228,11 +228,12 @@ fn a_tiny_pi05_runs_with_its_quantile_state_prompt_and_the_episodes_own_noise() 
     let built = lerobot_tiny_with_env(&["pi05", d.join("tiny").to_str().unwrap()], &env);
     assert!(built.contains("\"parameters\""), "{built}");
     let (ckpt, tokenizer) = (d.join("tiny/ckpt"), d.join("tiny/tokenizer"));
-    let specs = specs(&d, "0,1", "1");
-    // 2 episodes sharing calls; 8 policy steps = 2 chunks of 5 executed; the checkpoint names
+    let specs = specs(&d, "0", "2");
+    // 2 episodes of one task (their workers start together: one task's scene is compiled once)
+    // sharing calls; 8 policy steps = 2 chunks of 5 executed; the checkpoint names
     // PaliGemma's gated tokenizer, and tokenizer= gives the local stand-in
     let policy = format!(
-        "lerobot:{}?python={}&batch=2&wait_ms=2000&tokenizer={}",
+        "lerobot:{}?python={}&batch=2&wait_ms=10000&tokenizer={}",
         ckpt.display(),
         lerobot_python().display(),
         tokenizer.display()
@@ -276,7 +277,7 @@ fn lerobots_act_runs_on_aloha_sim_as_lerobot_eval_feeds_it() {
     ]));
     // 4 episodes (2 tasks x seeds 1000, 1001) on 4 workers sharing calls of up to 4; 15 policy
     // steps = 2 chunks of the checkpoint's 10 executed actions.
-    let policy = format!("lerobot:{}?python={}&batch=4&wait_ms=2000", ckpt.display(), py.display());
+    let policy = format!("lerobot:{}?python={}&batch=4&wait_ms=10000", ckpt.display(), py.display());
     let (run, record, line) = recorded_run(&d, "act", &specs, &policy, 15, 4, &[]);
     let id = policy_identity(&run);
     assert_eq!(

@@ -404,16 +404,21 @@ fn with_fix(error: &str, target: &PythonTarget) -> String {
     }
 }
 
+/// An `act` frame without its arrays: per episode its task, seed and policy step.
+fn act_frame<O>(requests: &[Request<O>], policy_step: impl Fn(&O) -> u32) -> Frame {
+    let episodes: Vec<Value> = requests
+        .iter()
+        .map(|r| json!({"task": r.instruction, "seed": r.episode_seed, "policy_step": policy_step(&r.obs)}))
+        .collect();
+    Frame::new(json!({"op": "act", "episodes": episodes}))
+}
+
 /// The batch's observations as the host reads them (the docs book's "Python policies" page):
 /// per episode its task, seed and policy step; arrays stacked over the batch, the cameras as
 /// rendered (robosuite's orientation, rows bottom-up), the robot state in robosuite's terms
 /// (`eef_quat` is `robot0_eef_quat`, x, y, z, w).
 fn observation_frame(requests: &[Request], d: &Description) -> Result<Frame, String> {
-    let episodes: Vec<Value> = requests
-        .iter()
-        .map(|r| json!({"task": r.instruction, "seed": r.episode_seed, "policy_step": r.obs.policy_step}))
-        .collect();
-    let mut frame = Frame::new(json!({"op": "act", "episodes": episodes}));
+    let mut frame = act_frame(requests, |o| o.policy_step);
     let b = requests.len();
     let stack = |f: &dyn Fn(&crate::Observation) -> Vec<f64>, shape: &[usize]| {
         let values: Vec<f64> = requests.iter().flat_map(|r| f(&r.obs)).collect();
@@ -456,11 +461,7 @@ fn observation_frame(requests: &[Request], d: &Description) -> Result<Frame, Str
 /// policy step; `agent_pos` (B, 14) and, when the policy reads it, `top` (B, 480, 640, 3) uint8
 /// upright, as gym-aloha's `pixels_agent_pos` observation holds them.
 fn aloha_observation_frame(requests: &[Request<AlohaObservation>], d: &Description) -> Result<Frame, String> {
-    let episodes: Vec<Value> = requests
-        .iter()
-        .map(|r| json!({"task": r.instruction, "seed": r.episode_seed, "policy_step": r.obs.policy_step}))
-        .collect();
-    let mut frame = Frame::new(json!({"op": "act", "episodes": episodes}));
+    let mut frame = act_frame(requests, |o| o.policy_step);
     let b = requests.len();
     let agent_pos: Vec<f64> = requests.iter().flat_map(|r| r.obs.agent_pos).collect();
     frame.arrays.insert("agent_pos".into(), Array::f64(vec![b, agent_pos.len() / b.max(1)], &agent_pos));
@@ -552,6 +553,8 @@ mod tests {
         let unsized_ = ready(json!({"observation": {"cameras": ["agentview"]}}));
         assert!(Description::from_ready(&unsized_, "libero").unwrap_err().contains("camera_size"));
         let seven = ready(json!({"observation": {"cameras": ["top"]}, "action_dim": 7}));
-        assert!(Description::from_ready(&seven, "aloha_sim").unwrap_err().contains("7-D, and this benchmark takes 14-D"));
+        assert!(
+            Description::from_ready(&seven, "aloha_sim").unwrap_err().contains("7-D, and this benchmark takes 14-D")
+        );
     }
 }

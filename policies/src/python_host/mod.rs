@@ -176,7 +176,6 @@ pub struct Description {
     pub wrist: bool,
     /// ALOHA-sim's `top` camera (480 × 640, its only one).
     pub top: bool,
-    pub action_dim: usize,
     pub executed_steps: usize,
     pub identity: Value,
 }
@@ -230,7 +229,6 @@ impl Description {
             camera_size,
             wrist: cameras.contains(&"wrist"),
             top: cameras.contains(&"top"),
-            action_dim,
             executed_steps,
             identity: d,
         })
@@ -544,11 +542,11 @@ mod tests {
         let aloha = ready(json!({"observation": {"cameras": ["top"]}, "action_dim": 14, "executed_steps": 10}));
         let d = Description::from_ready(&aloha, "aloha_sim").unwrap();
         assert!(d.top && !d.wrist && d.camera_size.is_none());
-        assert_eq!((d.action_dim, d.executed_steps), (14, 10));
+        assert_eq!(d.executed_steps, 10);
         assert!(Description::from_ready(&aloha, "libero").unwrap_err().contains("names \"top\", and libero renders"));
         let libero = ready(json!({"observation": {"cameras": ["agentview", "wrist"], "camera_size": 360}}));
         let d = Description::from_ready(&libero, "libero").unwrap();
-        assert_eq!((d.camera_size, d.wrist, d.top, d.action_dim), (Some(360), true, false, 7));
+        assert_eq!((d.camera_size, d.wrist, d.top), (Some(360), true, false));
         assert!(Description::from_ready(&libero, "aloha_sim").unwrap_err().contains("names \"agentview\""));
         let unsized_ = ready(json!({"observation": {"cameras": ["agentview"]}}));
         assert!(Description::from_ready(&unsized_, "libero").unwrap_err().contains("camera_size"));

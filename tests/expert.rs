@@ -136,3 +136,88 @@ fn a_forced_early_release_of_the_expert_is_a_dropped_failure() {
     let mp4 = std::fs::metadata(videos.join("libero_spatial_task0_init0.mp4")).unwrap();
     assert!(mp4.len() > 10_000, "{} bytes", mp4.len());
 }
+
+/// `pipeline bench run --lengths`: the canonical protocol's wall time at the lengths of the
+/// expert's real successes (`queries/protocol_projection.sql`), checked against the stored
+/// episodes: each suite's mean success length (first success step + 1), its 500 episodes at
+/// 97% success and the canonical cap otherwise, over the run's own policy steps per second. A
+/// lengths run that lacks a suite's success projects no total and says which suite is missing.
+#[test]
+fn the_expert_lengths_project_the_canonical_protocol() {
+    let dir = tmp("lengths");
+    let specs = dir.join("specs.parquet");
+    let s = specs.to_str().unwrap();
+    let suites = "libero_spatial,libero_object,libero_goal,libero_10";
+    // task 4 and 5 of each suite: the expert solves at least one of them in every suite
+    ok(pipeline(&["specs", "--suites", suites, "--tasks", "4,5", "--trials", "1", "-o", s]));
+    let run = dir.join("run");
+    let r = run.to_str().unwrap();
+    ok(pipeline(&["run", s, "--out", r, "--policy", "expert", "--stop-on-success", "--max-steps", "250"]));
+
+    let out = ok(pipeline(&["bench", "run", "--run", r, "--no-rescoring", "--lengths", r, "--success-rate", "0.97"]));
+    let rate: f64 = out
+        .split(" policy steps/s\n")
+        .next()
+        .and_then(|head| head.rsplit(", ").next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no policy steps/s in:\n{out}"));
+    let stored = sql(
+        &run,
+        "SELECT suite, SUM(CASE WHEN success THEN 1 ELSE 0 END), SUM(CASE WHEN success THEN first_success_step + 1 ELSE 0 END) FROM episodes GROUP BY suite",
+        &[],
+    );
+    let caps = [("libero_spatial", 220.0), ("libero_object", 280.0), ("libero_goal", 300.0), ("libero_10", 520.0)];
+    let mut total = 0.0;
+    for (suite, cap) in caps {
+        let s = stored.iter().find(|r| r[0] == suite).unwrap_or_else(|| panic!("{suite} not stored: {stored:?}"));
+        let (successes, steps): (f64, f64) = (s[1].parse().unwrap(), s[2].parse().unwrap());
+        assert!(successes >= 1.0, "the expert solved none of {suite}'s tasks 4 and 5: {stored:?}");
+        let mean = steps / successes;
+        let policy_steps = 500.0 * (0.97 * mean + 0.03 * cap);
+        total += policy_steps;
+        let printed = row_of(&out, suite);
+        assert_eq!(printed[1], "2", "{suite}: 2 episodes\n{out}");
+        assert_eq!(printed[2], format!("{successes}"), "{suite}\n{out}");
+        assert_eq!(printed[3], format!("{mean:.1}"), "{suite}\n{out}");
+        assert_eq!(printed[4], format!("{cap}"), "{suite}\n{out}");
+        assert_eq!(printed[5], format!("{policy_steps:.0}"), "{suite}\n{out}");
+    }
+    let all = row_of(&out, "all four");
+    assert_eq!(all[6], format!("{total:.0}"), "{out}");
+    // the rate is printed to 0.1 step/s: the minutes from it agree to that rounding
+    let minutes: f64 = all[7].parse().unwrap();
+    let expected = total / rate / 60.0;
+    assert!((minutes - expected).abs() <= 0.05 + expected * 1e-3, "{minutes} against {expected}\n{out}");
+
+    // a lengths run of libero_spatial alone: no total, and the missing suites named
+    let part = dir.join("spatial_only");
+    for sub in ["episodes", "steps"] {
+        std::fs::create_dir_all(part.join(sub)).unwrap();
+        for entry in std::fs::read_dir(run.join(sub)).unwrap() {
+            let path = entry.unwrap().path();
+            if path.file_name().unwrap().to_string_lossy().contains("libero_spatial") {
+                std::fs::copy(&path, part.join(sub).join(path.file_name().unwrap())).unwrap();
+            }
+        }
+    }
+    for f in ["manifest.json", "manifest.parquet", "specs.parquet"] {
+        if run.join(f).exists() {
+            std::fs::copy(run.join(f), part.join(f)).unwrap();
+        }
+    }
+    let out = ok(pipeline(&["bench", "run", "--run", r, "--no-rescoring", "--lengths", part.to_str().unwrap()]));
+    let all = row_of(&out, "all four");
+    assert_eq!(all[6], "-", "no total without every suite:\n{out}");
+    assert!(out.contains("no successful episode of libero_object, libero_goal, libero_10"), "{out}");
+
+    let bad = pipeline(&["bench", "run", "--run", r, "--no-rescoring", "--lengths", r, "--success-rate", "97"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--success-rate 97 is not a rate"));
+}
+
+fn row_of(out: &str, label: &str) -> Vec<String> {
+    let line = out.lines().find(|l| l.trim_start().starts_with(&format!("{label} "))).unwrap_or_else(|| {
+        panic!("no row for {label} in:\n{out}");
+    });
+    line.split_whitespace().map(str::to_string).collect()
+}

@@ -6,6 +6,9 @@
 //! - where a policy step's time goes (render, policy: queue / preparation / forward, env step),
 //!   the episodes per hour, the model's busy fraction and the projected wall time of the canonical
 //!   protocol, from the timings stored with every step (`queries/step_timing.sql`);
+//! - with `--lengths`, that protocol's wall time at a succeeding policy's episode lengths
+//!   (`queries/protocol_projection.sql`): a model with random weights runs every episode to its cap,
+//!   while the wall time a user meets is that of a policy whose episodes stop at success;
 //! - wall time of re-scoring as a user does it: `pipeline results` under each success definition,
 //!   with and without a shorter cap, and `pipeline report` without videos, each a fresh process
 //!   (median of `--repeats`).
@@ -19,7 +22,8 @@ use std::time::Instant;
 pub const EXAMPLES: &str = "\
 Examples:
   pipeline bench run --run runs/pi05
-  pipeline bench run --run runs/pi05 --no-rescoring   # the run's own figures only";
+  pipeline bench run --run runs/pi05 --no-rescoring   # the run's own figures only
+  pipeline bench run --run runs/oft --no-rescoring --lengths runs/expert --success-rate 0.97";
 
 #[derive(clap::Args)]
 pub struct RunArgs {
@@ -35,9 +39,20 @@ pub struct RunArgs {
     /// Only the run's own figures (invocations, files, step timing), no re-scoring.
     #[arg(long)]
     no_rescoring: bool,
+    /// Also project the canonical protocol (4 suites x 500 episodes) at the episode lengths of this
+    /// stored run: each suite's mean length of its successful episodes (a run of a policy that
+    /// succeeds, such as `--policy expert` over the four suites), at `--run`'s policy steps per second.
+    #[arg(long, value_name = "RUN")]
+    lengths: Option<String>,
+    /// With `--lengths`: the success rate projected; the other episodes run to their suite's cap.
+    #[arg(long, default_value_t = 0.97, value_name = "RATE")]
+    success_rate: f64,
 }
 
 pub fn run(args: RunArgs) -> Result<()> {
+    if args.lengths.is_some() && !(0.0..=1.0).contains(&args.success_rate) {
+        bail!("--success-rate {} is not a rate: give a number in [0, 1], e.g. 0.97", args.success_rate);
+    }
     let runtime = tokio::runtime::Runtime::new()?;
     let store = runtime.block_on(RunStore::connect(&args.run))?;
     let (sessions, files) = runtime.block_on(async {
@@ -78,7 +93,13 @@ pub fn run(args: RunArgs) -> Result<()> {
     for (table, n) in &files {
         println!("files in {table}/: {n}");
     }
-    print_step_timing(&runtime, &args.run)?;
+    let rate = print_step_timing(&runtime, &args.run)?;
+    if let Some(lengths) = &args.lengths {
+        match rate {
+            Some(rate) if rate > 0.0 => print_projection(&runtime, lengths, rate, args.success_rate)?,
+            _ => bail!("--lengths needs the policy steps per second of --run, and {} has no step timings", args.run),
+        }
+    }
     if args.no_rescoring {
         return Ok(());
     }
@@ -114,15 +135,16 @@ pub fn run(args: RunArgs) -> Result<()> {
     Ok(())
 }
 
-/// `queries/step_timing.sql` over the run, as labelled lines (one row: the run's figures).
-fn print_step_timing(runtime: &tokio::runtime::Runtime, run: &str) -> Result<()> {
+/// `queries/step_timing.sql` over the run, as labelled lines (one row: the run's figures); returns
+/// the run's policy steps per second.
+fn print_step_timing(runtime: &tokio::runtime::Runtime, run: &str) -> Result<Option<f64>> {
     use arrow::array::{Array, AsArray};
     use arrow::datatypes::Float64Type;
     let batches = runtime.block_on(async {
         let (ctx, _) = crate::session::open(run, crate::session::SuccessDefinition::AnyStep, None).await?;
         crate::session::queries::run(&ctx, crate::session::queries::STEP_TIMING).await
     })?;
-    let Some(batch) = batches.iter().find(|b| b.num_rows() > 0) else { return Ok(()) };
+    let Some(batch) = batches.iter().find(|b| b.num_rows() > 0) else { return Ok(None) };
     let value = |name: &str| -> Option<f64> {
         let column = arrow::compute::cast(batch.column_by_name(name)?, &arrow::datatypes::DataType::Float64).ok()?;
         let column = column.as_primitive::<Float64Type>();
@@ -132,7 +154,7 @@ fn print_step_timing(runtime: &tokio::runtime::Runtime, run: &str) -> Result<()>
     println!("where the time goes (queries/step_timing.sql; stored per-step timings):");
     let Some(span) = value("span_s") else {
         println!("  (no timings: the run predates tables v5)");
-        return Ok(());
+        return Ok(None);
     };
     println!(
         "  {} episodes, {} policy steps over {span:.1} s: {} episodes/h, {} policy steps/s",
@@ -169,5 +191,63 @@ fn print_step_timing(runtime: &tokio::runtime::Runtime, run: &str) -> Result<()>
         show(value("canonical_hours_1_replica"), 2),
         show(value("canonical_hours_8_replicas"), 2)
     );
+    Ok(value("policy_steps_per_s"))
+}
+
+/// `queries/protocol_projection.sql` over the `lengths` run's episodes at `rate` policy steps/s.
+fn print_projection(runtime: &tokio::runtime::Runtime, lengths: &str, rate: f64, success_rate: f64) -> Result<()> {
+    let sql = crate::session::queries::text(crate::session::queries::PROTOCOL_PROJECTION)?
+        .replace("{{success_rate}}", &format!("{success_rate:?}"))
+        .replace("{{policy_steps_per_s}}", &format!("{rate:?}"));
+    let batches = runtime.block_on(async {
+        let (ctx, _) = crate::session::open(lengths, crate::session::SuccessDefinition::AnyStep, None).await?;
+        anyhow::Ok(ctx.sql(&sql).await.context("queries/protocol_projection.sql")?.collect().await?)
+    })?;
+    println!(
+        "canonical protocol at {:.0}% success with the lengths of {lengths}'s successes (queries/protocol_projection.sql), at {rate:.1} policy steps/s:",
+        success_rate * 100.0
+    );
+    println!(
+        "  {:<16} {:>9} {:>10} {:>22} {:>5} {:>13} {:>9}",
+        "suite", "episodes", "successes", "mean success length", "cap", "policy steps", "minutes"
+    );
+    let Some(first) = batches.first() else { bail!("queries/protocol_projection.sql returned nothing") };
+    let table = arrow::compute::concat_batches(&first.schema(), &batches)?;
+    let text = |c: &str, r: usize| -> Result<String> {
+        let column = table.column_by_name(c).with_context(|| format!("protocol_projection.sql has no {c}"))?;
+        Ok(if column.is_null(r) { "-".into() } else { arrow::util::display::array_value_to_string(column, r)? })
+    };
+    let number = |c: &str, r: usize, digits: usize| -> Result<String> {
+        use arrow::array::{Array, AsArray};
+        let column = arrow::compute::cast(
+            table.column_by_name(c).with_context(|| format!("protocol_projection.sql has no {c}"))?,
+            &arrow::datatypes::DataType::Float64,
+        )?;
+        let column = column.as_primitive::<arrow::datatypes::Float64Type>();
+        Ok(if column.is_null(r) { "-".into() } else { format!("{:.digits$}", column.value(r)) })
+    };
+    let mut missing = Vec::new();
+    for r in 0..table.num_rows() {
+        let suite = text("suite", r)?;
+        if number("policy_steps", r, 0)? == "-" && suite.starts_with("libero") {
+            missing.push(suite.clone());
+        }
+        println!(
+            "  {suite:<16} {:>9} {:>10} {:>22} {:>5} {:>13} {:>9}",
+            text("episodes", r)?,
+            text("successes", r)?,
+            number("mean_success_steps", r, 1)?,
+            text("cap", r)?,
+            number("policy_steps", r, 0)?,
+            number("minutes", r, 1)?
+        );
+    }
+    if !missing.is_empty() {
+        println!(
+            "  no projection: {lengths} has no successful episode of {} (run the policy over every suite, e.g. \
+             `pipeline specs --suites libero_spatial,libero_object,libero_goal,libero_10 --trials 5`)",
+            missing.join(", ")
+        );
+    }
     Ok(())
 }

@@ -96,6 +96,7 @@ pub mod queries {
     pub const ROBUSTNESS: &str = "robustness";
     pub const ROBUSTNESS_SUMMARY: &str = "robustness_summary";
     pub const STEP_TIMING: &str = "step_timing";
+    pub const PROTOCOL_PROJECTION: &str = "protocol_projection";
     pub const GENERALISATION: &str = "generalisation";
     pub const GENERALISATION_SUMMARY: &str = "generalisation_summary";
     pub const PRO_ROBUSTNESS_CASES: &str = "pro_robustness_cases";
@@ -119,6 +120,7 @@ pub mod queries {
         (ROBUSTNESS, include_str!("../../queries/robustness.sql")),
         (ROBUSTNESS_SUMMARY, include_str!("../../queries/robustness_summary.sql")),
         (STEP_TIMING, include_str!("../../queries/step_timing.sql")),
+        (PROTOCOL_PROJECTION, include_str!("../../queries/protocol_projection.sql")),
         (GENERALISATION, include_str!("../../queries/generalisation.sql")),
         (GENERALISATION_SUMMARY, include_str!("../../queries/generalisation_summary.sql")),
         (PRO_ROBUSTNESS_CASES, include_str!("../../queries/pro_robustness_cases.sql")),

@@ -11,6 +11,8 @@
 #          libero_spatial's 10 tasks, more options of the policy, e.g. devices=cuda:0,cuda:1 or
 #          quant=int8); default 32:32:4.
 # MAX_STEPS=N caps every episode at N policy steps (default: the suite's cap, 220).
+# MODEL=oft runs OpenVLA-OFT 7B (`oft:`; its heads drawn by scripts/reference/oft_from_openvla.py on
+# OpenVLA-7B's random backbone) instead of OpenVLA-7B (`openvla:`, the default).
 # ENGINE=ballista://HOST:PORT runs the episodes on that cluster's executors instead of in this
 # process (JOBS is then unused: the executors' slots decide how many run at once).
 # What the machine needs: scripts/bench/gpu_setup.sh. Weights are random (none can be downloaded
@@ -22,17 +24,24 @@ mkdir -p "$out"
 work=${TMPDIR:-/tmp}/libero-gpu-e2e; mkdir -p "$work"
 
 . scripts/bench/gpu_setup.sh
+model=${MODEL:-openvla}
+case "$model" in
+  openvla) ;;
+  oft) [ -f "$work/oft-7b/action_head--150000_checkpoint.pt" ] || python3 scripts/reference/oft_from_openvla.py "$ckpt" "$work/oft-7b"
+       ckpt="$work/oft-7b" ;;
+  *) echo "MODEL=$model: openvla or oft" >&2; exit 2 ;;
+esac
 
 nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used,power.draw --format=csv,noheader -lms 250 > "$out/nvidia-smi.csv" &
 smi=$!
 trap 'kill $smi 2>/dev/null || true' EXIT
 for r in "${runs[@]}"; do
   IFS=: read -r jobs batch trials options <<< "$r"
-  name="spatial-j${jobs}-b${batch}-t${trials}${options:+-$(echo "$options" | tr -c 'a-z0-9\n' '_')}"
+  name="$model-spatial-j${jobs}-b${batch}-t${trials}${options:+-$(echo "$options" | tr -c 'a-z0-9\n' '_')}"
   "$P" --bundles "$work/bundles" specs --suites libero_spatial --trials "$trials" -o "$work/$name.parquet"
   echo "::: $name: start $(date -u +%FT%T.%3NZ)" | tee -a "$out/runs.log"
   "$P" --bundles "$work/bundles" run "$work/$name.parquet" --out "$out/$name" \
-    --policy "openvla:$ckpt?unnorm=libero_spatial_no_noops&batch=$batch${options:+&$options}" --jobs "$jobs" ${MAX_STEPS:+--max-steps "$MAX_STEPS"} ${ENGINE:+--engine "$ENGINE"} 2>&1 | tee "$out/$name.log" | grep -v '^|\|^+' || true
+    --policy "$model:$ckpt?unnorm=libero_spatial_no_noops&batch=$batch${options:+&$options}" --jobs "$jobs" ${MAX_STEPS:+--max-steps "$MAX_STEPS"} ${ENGINE:+--engine "$ENGINE"} 2>&1 | tee "$out/$name.log" | grep -v '^|\|^+' || true
   echo "::: $name: end $(date -u +%FT%T.%3NZ)" | tee -a "$out/runs.log"
   "$P" --bundles "$work/bundles" bench run --run "$out/$name" --no-rescoring | tee "$out/$name.bench.txt"
   # the attention the manifest records (with, for SDPA on a GPU, whether cuDNN's attention was kept last)

@@ -33,6 +33,7 @@ mod plus_layout;
 mod pro;
 mod pro_occlusion;
 mod pro_robustness;
+mod processes;
 mod python_policy;
 mod readme;
 mod real_time;

@@ -21,6 +21,7 @@ mod lerobot_dataset;
 mod libero_plus;
 mod libero_pro_robustness;
 mod media;
+mod processes;
 mod published;
 mod report;
 mod results;

@@ -102,9 +102,18 @@ pub struct Args {
     /// action again; ALOHA-sim's default, its actions are absolute targets). Needs --latency-ms.
     #[arg(long, value_name = "repeat|stay")]
     hold: Option<libero_schema::real_time::Hold>,
-    /// Parallel episodes (default: one per core).
+    /// Parallel episodes (default: one per core); with --processes, shared out among them.
     #[arg(long)]
     jobs: Option<usize>,
+    /// Run the episodes in N processes of this binary instead of one: the policy's devices= dealt
+    /// out among them (process k takes devices k, k+N, ...), each with its share of --jobs and its
+    /// cameras on its own GPUs, as N one-GPU machines. For a machine with several GPUs: one
+    /// process renders every camera through one GL thread (docs: GPUs, Several GPUs).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    processes: u32,
+    /// Set by --processes on each of its processes: the share of the spec rows this one runs.
+    #[arg(long, hide = true)]
+    process_share: Option<crate::processes::Share>,
     /// At the end of a run, merge its one-episode parts into a few large files (`pipeline compact`)
     /// once there are at least this many (0: never). Re-scoring 2000 episodes takes 2.1 s over
     /// 4000 parts and 0.2 s compacted; compacting them takes ~9 s.
@@ -124,7 +133,7 @@ pub struct Args {
     /// The ALOHA-sim bundle, for a spec table of suite aloha_sim (default: data/aloha).
     #[arg(long)]
     aloha_bundle: Option<PathBuf>,
-    /// Tests only: every episode sleeps this long first (to kill an executor mid-run).
+    /// Tests only: every episode sleeps this long first (to kill an executor or a process mid-run).
     #[arg(long, hide = true, default_value_t = 0)]
     test_episode_delay_ms: u64,
 }
@@ -132,6 +141,22 @@ pub struct Args {
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
     // A scheduler that does not answer stops the run before anything is read or written.
     tokio::runtime::Runtime::new()?.block_on(args.engine.engine.check())?;
+    let fan_out = args.processes > 1 && args.process_share.is_none();
+    if args.processes > 1 && !matches!(args.engine.engine, Engine::Local) {
+        bail!(
+            "--processes {} runs this machine's processes; with --engine {} the cluster's executors run the episodes: drop one of them",
+            args.processes,
+            args.engine.engine
+        );
+    }
+    // the policy this process runs: with --processes, its share of the devices
+    let policy = match args.process_share {
+        Some(share) => args.policy.device_share(share.k, share.n).map_err(anyhow::Error::msg)?,
+        None => args.policy.clone(),
+    };
+    if fan_out {
+        crate::processes::policies(&args.policy, args.processes as usize)?;
+    }
     let raw = specs::read_spec_file(&args.specs)?;
     let benchmark = specs::spec_benchmark(&raw, &args.specs.display().to_string())?;
     if let Err(e) = args.policy.check_benchmark(benchmark) {
@@ -161,12 +186,20 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             args.policy.name()
         );
     }
-    check_noise_sizes(&args, &specs)?;
+    if !fan_out {
+        check_noise_sizes(&args.specs, &policy, &specs)?;
+    }
     // A bundle file damaged since the set-up stops the run here, named, not in every episode.
     let tasks: BTreeSet<(Suite, u32)> =
         specs.keys.iter().filter_map(|k| Some((k.suite.parse().ok()?, k.task_id as u32))).collect();
     libero_sim::bundle_integrity::verify_tasks(&set, &tasks)?;
-    if let Some(j) = args.jobs {
+    let jobs = match args.process_share {
+        Some(share) => {
+            Some(share.jobs(args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))))
+        }
+        None => args.jobs,
+    };
+    if let Some(j) = jobs {
         rayon::ThreadPoolBuilder::new().num_threads(j.max(1)).build_global().ok();
     }
     let realtime = match (args.latency_ms, args.hold) {
@@ -189,10 +222,8 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             args.policy.name()
         );
     }
-    let max_steps: BTreeMap<Suite, u32> = tasks
-        .iter()
-        .map(|(s, _)| (*s, args.max_steps.unwrap_or_else(|| specs.protocol.max_steps(s.base))))
-        .collect();
+    let max_steps: BTreeMap<Suite, u32> =
+        tasks.iter().map(|(s, _)| (*s, args.max_steps.unwrap_or_else(|| specs.protocol.max_steps(s.base)))).collect();
     let aloha_max_steps = args.max_steps.unwrap_or(aloha_protocol::LEROBOT_MAX_STEPS);
     let protocol = RunProtocol {
         max_steps,
@@ -203,8 +234,12 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         realtime,
         protocol: specs.protocol,
     };
-    // the workers' cameras on GPUs without the model where the machine has such GPUs
-    libero_sim::gl::keep_renders_off(&args.policy.model_cuda_devices());
+    // the workers' cameras on GPUs without the model where the machine has such GPUs; a process of
+    // --processes has its share of the GPUs, and renders on them as a one-GPU machine does
+    match args.process_share {
+        None => libero_sim::gl::keep_renders_off(&policy.model_cuda_devices()),
+        Some(_) => libero_sim::gl::keep_renders_on(&policy.model_cuda_devices()),
+    }
     libero_sim::gl_thread::GlThreads::from_env()?;
     let mut manifest = RunManifest {
         tables_version: tables::TABLES_VERSION,
@@ -259,7 +294,17 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         if let Some(c) = compaction::live_lock(&store, "compaction.lock").await? {
             bail!("{} is being compacted by pid {} on {}; run it when that has finished", store.url(), c.pid, c.host);
         }
-        match store.read_manifest().await? {
+        let stored = store.read_manifest().await?;
+        if let Some(share) = args.process_share
+            && stored.as_ref().is_none_or(|m| m.run_config != manifest.run_config)
+        {
+            bail!(
+                "--process-share {share} is set by `pipeline run --processes`, for a run whose manifest it wrote first; {} has {}. Run `pipeline run` without --process-share.",
+                store.url(),
+                if stored.is_none() { "no manifest" } else { "another configuration" }
+            );
+        }
+        match stored {
             Some(stored) if stored.bundle_format_version != manifest.bundle_format_version => {
                 bail!(
                     "{} holds a run made on task bundles of format {}; this build runs format {}, and {}.\nIts episodes cannot be resumed or mixed with new ones: run into a new --out (re-run the whole spec table).",
@@ -279,35 +324,63 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             Some(stored) => manifest.created_at = stored.created_at,
             None => {}
         }
-        write_manifest(&store, &manifest).await?;
-        store.put("specs.parquet", parquet_bytes(&specs.batch, None)?).await?;
+        // a process of --processes finds the manifest, the specs and the parts as its parent left them
+        if args.process_share.is_none() {
+            write_manifest(&store, &manifest).await?;
+            store.put("specs.parquet", parquet_bytes(&specs.batch, None)?).await?;
 
-        // A damaged part (cut short by a full disk, say) would count its episode as finished and
-        // then fail every query: set its episode's parts aside, named, so this run re-runs it.
-        for part in store.damaged_parts().await? {
-            for moved in store.set_aside(&part.name).await? {
-                eprintln!("damaged part {part}: set aside {moved}; its episode runs again");
+            // A damaged part (cut short by a full disk, say) would count its episode as finished
+            // and then fail every query: set its episode's parts aside, named, so this run re-runs it.
+            for part in store.damaged_parts().await? {
+                for moved in store.set_aside(&part.name).await? {
+                    eprintln!("damaged part {part}: set aside {moved}; its episode runs again");
+                }
             }
         }
         let finished = compaction::finished_part_names(&store).await?;
         let pending: Vec<u32> = (0..specs.keys.len() as u32)
+            .filter(|&i| args.process_share.is_none_or(|share| share.owns(i)))
             .filter(|&i| !finished.contains(&specs.keys[i as usize].part_name()))
             .collect();
-        let done_before = specs.keys.len() - pending.len();
-        eprintln!(
-            "run {} · policy {} · {} episodes ({} already finished, {} to run) · config {}",
-            store.url(),
-            manifest.policy,
-            specs.keys.len(),
-            done_before,
-            pending.len(),
-            manifest.run_config
-        );
+        match args.process_share {
+            None => eprintln!(
+                "run {} · policy {} · {} episodes ({} already finished, {} to run) · config {}",
+                store.url(),
+                manifest.policy,
+                specs.keys.len(),
+                specs.keys.len() - pending.len(),
+                pending.len(),
+                manifest.run_config
+            ),
+            Some(share) => {
+                let owned = (0..specs.keys.len() as u32).filter(|&i| share.owns(i)).count();
+                eprintln!(
+                    "{owned} of the run's {} episodes are this process's ({} already finished, {} to run); policy {}",
+                    specs.keys.len(),
+                    owned - pending.len(),
+                    pending.len(),
+                    policy
+                );
+            }
+        }
+        if let Some(share) = args.process_share {
+            // the parent holds the writer lock, compacts and prints the results
+            if !pending.is_empty() {
+                let ctx = RunInputs { set: &set, aloha: aloha.as_ref(), specs: &specs, manifest: &manifest, store: &store };
+                run_pending(&args, &policy, &ctx, &protocol, &tasks, pending, Some(share)).await?;
+            }
+            return Ok(());
+        }
         if !pending.is_empty() {
             // While this runs, `pipeline compact` refuses the run (compaction::WriterLock).
             let lock = compaction::WriterLock::this_process(now_rfc3339());
             store.put("writer.json", serde_json::to_vec(&lock)?.into()).await?;
-            let ran = run_pending(&args, &set, aloha.as_ref(), &specs, &manifest, &store, &protocol, &tasks, pending).await;
+            let ran = if fan_out {
+                crate::processes::run_children(&args.policy, args.processes as usize, pending.len(), &store).await
+            } else {
+                let ctx = RunInputs { set: &set, aloha: aloha.as_ref(), specs: &specs, manifest: &manifest, store: &store };
+                run_pending(&args, &policy, &ctx, &protocol, &tasks, pending, None).await
+            };
             store.delete_if_present("writer.json").await?;
             ran?;
         }
@@ -329,9 +402,9 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
 /// before any episode, each named with its level and the fix, instead of becoming one error row
 /// per episode. The size is the policy's own (`Policy::camera_size`), so the policy is built once
 /// here (only when some row has sensor noise; a batched model stays loaded for the episodes).
-fn check_noise_sizes(args: &Args, specs: &specs::Specs) -> Result<()> {
+fn check_noise_sizes(spec_file: &Path, policy: &PolicySpec, specs: &specs::Specs) -> Result<()> {
     use libero_udfs::perturbation::{EpisodePerturbation, SENSOR_NOISE};
-    if !args.policy.sees_cameras() || !specs.extras.iter().any(|c| c == SENSOR_NOISE) {
+    if !policy.sees_cameras() || !specs.extras.iter().any(|c| c == SENSOR_NOISE) {
         return Ok(());
     }
     let schema = specs.batch.schema();
@@ -346,7 +419,7 @@ fn check_noise_sizes(args: &Args, specs: &specs::Specs) -> Result<()> {
     if noisy.is_empty() {
         return Ok(());
     }
-    let Some(size) = args.policy.instantiate()?.camera_size() else { return Ok(()) };
+    let Some(size) = policy.instantiate()?.camera_size() else { return Ok(()) };
     let bad: Vec<String> = noisy
         .iter()
         .filter_map(|(r, n)| {
@@ -369,33 +442,47 @@ fn check_noise_sizes(args: &Args, specs: &specs::Specs) -> Result<()> {
     let more = if n > 10 { format!("\n  ... and {} more", n - 10) } else { String::new() };
     bail!(
         "spec file {}: {n} row(s) ask for sensor noise the reference cannot apply at the policy {}'s {size}x{size} camera; no episode was started:\n  {}{more}\nFix: a policy whose camera is 256x256 (as OpenVLA's and the published LIBERO-Plus loops render; lb2025 glass blur needs at least 224), sensor_noise_revision = 'head' (LIBERO-Plus after eaf6577: fog up to 256 and glass blur at the image's size), or drop those rows.",
-        args.specs.display(),
-        args.policy.name(),
+        spec_file.display(),
+        policy.name(),
         shown.join("\n  ")
     )
 }
 
 /// Run the pending episodes through the rollout UDF, then record what this invocation did.
 #[allow(clippy::too_many_arguments)]
+/// What a run's episodes are made from and written to.
+struct RunInputs<'a> {
+    set: &'a Arc<BundleSet>,
+    aloha: Option<&'a Arc<AlohaBundle>>,
+    specs: &'a specs::Specs,
+    manifest: &'a RunManifest,
+    store: &'a RunStore,
+}
+
+/// Run the `pending` spec rows with `policy` in this process. `share`: this process is one of
+/// `--processes` (no progress bar of its own: the parent shows the run's).
 async fn run_pending(
     args: &Args,
-    set: &Arc<BundleSet>,
-    aloha: Option<&Arc<AlohaBundle>>,
-    specs: &specs::Specs,
-    manifest: &RunManifest,
-    store: &RunStore,
+    policy: &PolicySpec,
+    inputs: &RunInputs<'_>,
     protocol: &RunProtocol,
     tasks: &BTreeSet<(Suite, u32)>,
     pending: Vec<u32>,
+    share: Option<crate::processes::Share>,
 ) -> Result<()> {
-    let progress = ProgressBar::new(pending.len() as u64).with_style(
+    let RunInputs { set, aloha, specs, manifest, store } = *inputs;
+    let progress = match share {
+        None => ProgressBar::new(pending.len() as u64),
+        Some(_) => ProgressBar::hidden(),
+    }
+    .with_style(
         ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} episodes · {msg} · ETA {eta}")?
             .progress_chars("=> "),
     );
     progress.set_message("success 0/0");
     let mut ctx = RolloutContext::new(
         set.clone(),
-        args.policy.clone(),
+        policy.clone(),
         protocol.clone(),
         manifest.run_config.clone(),
         serde_json::to_string(&manifest)?,
@@ -405,6 +492,9 @@ async fn run_pending(
     );
     if let Some(b) = aloha {
         ctx = ctx.with_aloha(b.clone());
+    }
+    if args.test_episode_delay_ms > 0 {
+        ctx = ctx.with_episode_delay(std::time::Duration::from_millis(args.test_episode_delay_ms));
     }
     let ctx = Arc::new(ctx);
     let n_pending = pending.len();

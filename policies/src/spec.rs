@@ -308,6 +308,36 @@ impl Batching {
 }
 
 impl PolicySpec {
+    /// The policy that process `k` of `n` runs (`pipeline run --processes n`): the listed
+    /// `devices=` dealt out in turn (process k takes devices k, k + n, ...), so that each process
+    /// holds its own GPUs' replicas; a policy without a device list is the same in every process
+    /// (each then loads its own model, on the default device). An error when the list is shorter
+    /// than `n`, which would leave a process without a device.
+    pub fn device_share(&self, k: usize, n: usize) -> Result<PolicySpec, String> {
+        let share = |devices: &[ModelDevice]| -> Result<Vec<ModelDevice>, String> {
+            if devices.is_empty() {
+                return Ok(Vec::new());
+            }
+            if devices.len() < n {
+                return Err(format!(
+                    "--processes {n} deals the policy's devices out, one process at least one each, but devices={} lists {}: list {n} or more devices, or ask for {} processes",
+                    devices_text(devices),
+                    devices.len(),
+                    devices.len()
+                ));
+            }
+            Ok(devices.iter().copied().skip(k).step_by(n).collect())
+        };
+        let mut policy = self.clone();
+        match &mut policy {
+            #[cfg(feature = "torch")]
+            PolicySpec::OpenVla(o) | PolicySpec::Oft(o) => o.devices = share(&o.devices)?,
+            PolicySpec::Python(o) => o.devices = share(&o.devices)?,
+            _ => {}
+        }
+        Ok(policy)
+    }
+
     /// The CUDA devices an in-process model of this policy runs on (none for the others): a run
     /// keeps its cameras' GL contexts off them where the machine has other GPUs
     /// (`libero_sim::gl::keep_renders_off`).
@@ -1196,6 +1226,26 @@ fn parse_vla_eval(url: &str) -> Result<PolicySpec, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn processes_deal_the_devices_out_in_turn() {
+        let share = |text: &str, k: usize, n: usize| -> Result<String, String> {
+            text.parse::<PolicySpec>().unwrap().device_share(k, n).map(|p| p.to_string())
+        };
+        let four = "oft:/c?batch=64&devices=cuda:0,cuda:1,cuda:2,cuda:3";
+        assert_eq!(share(four, 0, 4).unwrap(), "oft:/c?batch=64&devices=cuda:0");
+        assert_eq!(share(four, 3, 4).unwrap(), "oft:/c?batch=64&devices=cuda:3");
+        assert_eq!(share(four, 1, 2).unwrap(), "oft:/c?batch=64&devices=cuda:1,cuda:3");
+        assert_eq!(share("lerobot:/c?devices=cuda:0,cuda:1", 1, 2).unwrap(), "lerobot:/c?devices=cuda:1");
+        // no device list, or no model: the same policy in every process
+        assert_eq!(share("openvla:/c?batch=8", 1, 2).unwrap(), "openvla:/c?batch=8");
+        assert_eq!(share("expert", 1, 3).unwrap(), "expert");
+        let err = share("openvla:/c?batch=8&devices=cuda:0,cuda:1", 0, 4).unwrap_err();
+        assert!(
+            err.contains("--processes 4") && err.contains("lists 2") && err.contains("ask for 2 processes"),
+            "{err}"
+        );
+    }
 
     #[test]
     fn ensemble_is_an_option_of_every_chunked_policy_and_refused_where_it_cannot_mean_anything() {

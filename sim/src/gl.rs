@@ -186,8 +186,8 @@ pub fn next_device() -> Result<Option<DeviceInfo>, SimError> {
     let infos: Vec<DeviceInfo> = devices.into_iter().map(|(_, info)| info).collect();
     let wanted = std::env::var("MUJOCO_EGL_DEVICE_ID").ok();
     let nth = CONTEXTS_MADE.fetch_add(1, Ordering::Relaxed);
-    let models = MODEL_GPUS.lock().expect("model GPUs").clone();
-    choose_device(&infos, wanted.as_deref(), nth, &models).map(Some)
+    let (models, placement) = MODEL_GPUS.lock().expect("model GPUs").clone();
+    choose_device(&infos, wanted.as_deref(), nth, &models, placement).map(Some)
 }
 
 /// The display of `device`; Mesa's surfaceless platform for `None`.
@@ -207,8 +207,19 @@ fn open_display(lib: &Egl, device: Option<&DeviceInfo>) -> Result<egl::Display, 
 /// Contexts this process has made: each new one goes to the next hardware device in turn.
 static CONTEXTS_MADE: AtomicUsize = AtomicUsize::new(0);
 
-/// The CUDA devices this process runs a model on ([`keep_renders_off`]).
-static MODEL_GPUS: Mutex<Vec<i64>> = Mutex::new(Vec::new());
+/// The CUDA devices this process runs a model on, and whether its renders keep off them
+/// ([`keep_renders_off`]) or go to them ([`keep_renders_on`]).
+static MODEL_GPUS: Mutex<(Vec<i64>, RenderPlacement)> = Mutex::new((Vec::new(), RenderPlacement::OffModels));
+
+/// Where a process's GL contexts go relative to the GPUs its model runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RenderPlacement {
+    /// On GPUs without the model where the machine has such GPUs (a process with the machine's GPUs).
+    OffModels,
+    /// On the model's own GPUs (a process of `pipeline run --processes`, which has one GPU's share
+    /// of the machine, as a one-GPU machine has).
+    OnModels,
+}
 
 /// Makes the contexts made from now on prefer GPUs other than these CUDA devices (where the
 /// process runs a model), when the machine has such GPUs.
@@ -218,11 +229,22 @@ static MODEL_GPUS: Mutex<Vec<i64>> = Mutex::new(Vec::new());
 /// GPUs, while 16 processes rendering on an idle GPU took 49 ms a frame pair
 /// (`data/benchmarks/gpu-own-kernels-h100-2026-11-27`).
 pub fn keep_renders_off(cuda_devices: &[usize]) {
-    *MODEL_GPUS.lock().expect("model GPUs") = cuda_devices.iter().map(|&d| d as i64).collect();
+    *MODEL_GPUS.lock().expect("model GPUs") =
+        (cuda_devices.iter().map(|&d| d as i64).collect(), RenderPlacement::OffModels);
+}
+
+/// Makes the contexts made from now on go to these CUDA devices' GPUs (in turn), where EGL lists
+/// them: for a process that runs its model on part of the machine's GPUs while other processes run
+/// on the rest (`pipeline run --processes`). Its renders then share its GPU as on a one-GPU
+/// machine, instead of the GPUs of the other processes' models.
+pub fn keep_renders_on(cuda_devices: &[usize]) {
+    *MODEL_GPUS.lock().expect("model GPUs") =
+        (cuda_devices.iter().map(|&d| d as i64).collect(), RenderPlacement::OnModels);
 }
 
 /// The device of the `nth` context of the process: `MUJOCO_EGL_DEVICE_ID`'s when set (`wanted`),
-/// else the hardware devices that are none of the `models`' CUDA devices in turn, else all
+/// else the hardware devices that are none of the `models`' CUDA devices in turn
+/// ([`RenderPlacement::OffModels`]; those that are, [`RenderPlacement::OnModels`]), else all
 /// hardware devices in turn, else the first (software) device.
 ///
 /// Why in turn: each NVIDIA context holds ~0.5 GB of its GPU, and a run keeps one per worker. On a
@@ -234,6 +256,7 @@ fn choose_device(
     wanted: Option<&str>,
     nth: usize,
     models: &[i64],
+    placement: RenderPlacement,
 ) -> Result<DeviceInfo, SimError> {
     if let Some(wanted) = wanted {
         let index: usize = wanted.trim().parse().map_err(|_| {
@@ -245,9 +268,15 @@ fn choose_device(
             .ok_or_else(|| no_gl(format!("MUJOCO_EGL_DEVICE_ID={index} but EGL lists {} device(s)", infos.len())));
     }
     let hardware: Vec<&DeviceInfo> = infos.iter().filter(|d| !d.software).collect();
-    let free: Vec<&DeviceInfo> =
-        hardware.iter().copied().filter(|d| d.cuda.is_none_or(|c| !models.contains(&c))).collect();
-    let pool = if free.is_empty() { &hardware } else { &free };
+    let preferred: Vec<&DeviceInfo> = hardware
+        .iter()
+        .copied()
+        .filter(|d| match placement {
+            RenderPlacement::OffModels => d.cuda.is_none_or(|c| !models.contains(&c)),
+            RenderPlacement::OnModels => d.cuda.is_some_and(|c| models.contains(&c)),
+        })
+        .collect();
+    let pool = if preferred.is_empty() { &hardware } else { &preferred };
     Ok(match pool.len() {
         0 => infos.first().cloned().expect("non-empty device list"),
         n => pool[nth % n].clone(),
@@ -258,6 +287,8 @@ fn choose_device(
 mod tests {
     use super::*;
 
+    const OFF: RenderPlacement = RenderPlacement::OffModels;
+
     fn device(index: usize, software: bool) -> DeviceInfo {
         DeviceInfo { index, software, drm_file: None, cuda: (!software).then_some(index as i64) }
     }
@@ -266,31 +297,51 @@ mod tests {
     fn contexts_go_to_the_hardware_devices_in_turn_unless_one_is_named() {
         // two GPUs and Mesa's software device, as glvnd lists them on a GPU machine with Mesa installed
         let infos = [device(0, false), device(1, false), device(2, true)];
-        let chosen: Vec<usize> = (0..5).map(|nth| choose_device(&infos, None, nth, &[]).unwrap().index).collect();
+        let chosen: Vec<usize> = (0..5).map(|nth| choose_device(&infos, None, nth, &[], OFF).unwrap().index).collect();
         assert_eq!(chosen, [0, 1, 0, 1, 0]);
-        assert_eq!(choose_device(&infos, Some("1"), 0, &[]).unwrap().index, 1);
-        assert_eq!(choose_device(&infos, Some("2"), 7, &[]).unwrap().index, 2);
-        assert!(choose_device(&infos, Some("3"), 0, &[]).is_err());
-        assert!(choose_device(&infos, Some("gpu"), 0, &[]).is_err());
+        assert_eq!(choose_device(&infos, Some("1"), 0, &[], OFF).unwrap().index, 1);
+        assert_eq!(choose_device(&infos, Some("2"), 7, &[], OFF).unwrap().index, 2);
+        assert!(choose_device(&infos, Some("3"), 0, &[], OFF).is_err());
+        assert!(choose_device(&infos, Some("gpu"), 0, &[], OFF).is_err());
         // a CPU machine: the software device, every time
         let cpu = [device(0, true)];
-        assert!((0..3).all(|nth| choose_device(&cpu, None, nth, &[]).unwrap().index == 0));
+        assert!((0..3).all(|nth| choose_device(&cpu, None, nth, &[], OFF).unwrap().index == 0));
         // one GPU: always it, a model on it or not
         let one = [device(0, true), device(1, false)];
-        assert!((0..3).all(|nth| choose_device(&one, None, nth, &[1]).unwrap().index == 1));
+        assert!((0..3).all(|nth| choose_device(&one, None, nth, &[1], OFF).unwrap().index == 1));
     }
 
     #[test]
     fn contexts_keep_off_the_gpus_that_run_a_model_while_others_are_free() {
         let infos = [device(0, false), device(1, false), device(2, false)];
         let chosen = |models: &[i64]| -> Vec<usize> {
-            (0..4).map(|nth| choose_device(&infos, None, nth, models).unwrap().index).collect()
+            (0..4).map(|nth| choose_device(&infos, None, nth, models, OFF).unwrap().index).collect()
         };
         assert_eq!(chosen(&[0]), [1, 2, 1, 2]);
         assert_eq!(chosen(&[0, 2]), [1, 1, 1, 1]);
         // a model on every GPU: all of them in turn
         assert_eq!(chosen(&[0, 1, 2]), [0, 1, 2, 0]);
         // the variable still decides
-        assert_eq!(choose_device(&infos, Some("0"), 1, &[0]).unwrap().index, 0);
+        assert_eq!(choose_device(&infos, Some("0"), 1, &[0], OFF).unwrap().index, 0);
+    }
+
+    #[test]
+    fn a_process_with_one_gpus_share_renders_on_its_models_gpus() {
+        // as glvnd lists them: EGL's order need not be CUDA's
+        let infos = [
+            DeviceInfo { index: 0, software: false, drm_file: None, cuda: Some(1) },
+            DeviceInfo { index: 1, software: false, drm_file: None, cuda: Some(0) },
+            DeviceInfo { index: 2, software: false, drm_file: None, cuda: Some(2) },
+            device(3, true),
+        ];
+        let on = RenderPlacement::OnModels;
+        let chosen = |models: &[i64]| -> Vec<usize> {
+            (0..4).map(|nth| choose_device(&infos, None, nth, models, on).unwrap().index).collect()
+        };
+        assert_eq!(chosen(&[0]), [1, 1, 1, 1]);
+        assert_eq!(chosen(&[1, 2]), [0, 2, 0, 2]);
+        // no CUDA device listed (a model on the CPU, or none): every GPU in turn
+        assert_eq!(chosen(&[]), [0, 1, 2, 0]);
+        assert_eq!(choose_device(&infos, Some("3"), 0, &[0], on).unwrap().index, 3);
     }
 }

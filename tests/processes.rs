@@ -24,12 +24,22 @@ fn two_processes_store_what_one_does() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
     for k in 0..2 {
-        assert!(stderr.contains(&format!("[process {k}/2] 2 of the run's 4 episodes are this process's")), "{stderr}");
+        let says =
+            format!("[process {k}/2] 2 of the run's 4 episodes are this process's (0 already finished, 2 to run)");
+        assert!(stderr.contains(&says), "{stderr}");
     }
     let rows = steps_of(&two);
     assert_eq!(rows.len(), 4 * (10 + 30), "4 episodes of 10 wait and 30 policy steps");
     assert_eq!(rows, steps_of(&one), "the same rows from two processes as from one");
-    assert_eq!(std::fs::read_dir(two.join("sessions")).unwrap().count(), 2, "one session record per process");
+    // each process ran its own two episodes, none twice
+    let sessions: Vec<u64> = std::fs::read_dir(two.join("sessions"))
+        .unwrap()
+        .map(|f| {
+            let record: serde_json::Value = serde_json::from_slice(&std::fs::read(f.unwrap().path()).unwrap()).unwrap();
+            record["episodes"].as_u64().unwrap()
+        })
+        .collect();
+    assert_eq!(sessions, [2, 2], "one session record per process, two episodes each");
     // the parent prints the whole run's results, as a run of one process does
     assert!(String::from_utf8_lossy(&out.stdout).contains("libero_spatial"));
     // nothing left: a resume, with any number of processes, runs nothing
@@ -76,7 +86,7 @@ fn a_process_that_dies_costs_its_unfinished_episodes_and_the_run_resumes() {
         "--processes",
         "2",
         "--test-episode-delay-ms",
-        "4000",
+        "6000",
     ];
     let mut parent = Command::new(pipeline_bin())
         .args(args)
@@ -87,28 +97,81 @@ fn a_process_that_dies_costs_its_unfinished_episodes_and_the_run_resumes() {
         .unwrap();
     let mut lines = BufReader::new(parent.stderr.take().unwrap()).lines().map_while(Result::ok);
     let mut seen = Vec::new();
-    let victim: u32 = loop {
-        let line = lines.next().unwrap_or_else(|| panic!("no pid of process 1/2 in:\n{}", seen.join("\n")));
+    let mut victim: Option<u32> = None;
+    loop {
+        let line =
+            lines.next().unwrap_or_else(|| panic!("process 1/2 never started its episodes:\n{}", seen.join("\n")));
         seen.push(line.clone());
         if let Some(rest) = line.strip_prefix("process 1/2: pid ") {
-            break rest.split(',').next().unwrap().trim().parse().unwrap();
+            victim = Some(rest.split(',').next().unwrap().trim().parse().unwrap());
         }
-    };
-    // within its first episode's delay: nothing of process 1 is stored yet
-    std::thread::sleep(std::time::Duration::from_millis(1500));
+        // its episodes have begun, each with a 6 s sleep first: nothing of process 1 is stored yet
+        if line.starts_with("[process 1/2] 2 of the run's 4 episodes") {
+            break;
+        }
+    }
+    let victim = victim.expect("the pid comes before the child's first line");
+    std::thread::sleep(std::time::Duration::from_millis(500));
     assert!(Command::new("kill").args(["-9", &victim.to_string()]).status().unwrap().success());
     seen.extend(lines);
     let status = parent.wait().unwrap();
     let stderr = seen.join("\n");
     assert!(!status.success(), "{stderr}");
     assert!(stderr.contains("process 1/2 (expert) ended with signal: 9"), "{stderr}");
-    assert!(stderr.contains("Run the same command again to resume them"), "{stderr}");
+    assert!(stderr.contains("run the same command again to run them"), "{stderr}");
     let stored = sql_rows(&run, "SELECT init_state_id FROM episodes ORDER BY init_state_id", &[]);
     assert_eq!(stored, vec![vec!["0".to_string()], vec!["2".to_string()]], "process 0's rows 0 and 2 only\n{stderr}");
 
+    // the resume deals what is left to both processes afresh
     let resumed = pipeline(&args[..args.len() - 2]);
     let err = String::from_utf8_lossy(&resumed.stderr);
     assert!(resumed.status.success(), "{err}");
     assert!(err.contains("(2 already finished, 2 to run)"), "{err}");
+    for k in 0..2 {
+        assert!(
+            err.contains(&format!("process {k}/2: pid ")) && err.contains(&format!("[process {k}/2] 1 of the run's 4")),
+            "{err}"
+        );
+    }
     assert_eq!(sql_rows(&run, "SELECT COUNT(*) FROM episodes", &[]), vec![vec!["4".to_string()]]);
+}
+
+/// A model policy's devices dealt out: each process runs its own replica on its device, and the
+/// episodes it stores are the run's policy (the manifest's, every device listed), not its share's.
+#[test]
+fn each_process_serves_its_device_and_stores_the_runs_policy() {
+    let dir = test_dir("processes", "devices");
+    let specs = dir.join("specs.parquet");
+    let s = specs.to_str().unwrap();
+    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0", "--trials", "4", "-o", s]));
+    let python = repo_root().join(".lerobot-venv/bin/python");
+    assert!(python.exists(), "no venv at {}: run ./setup.sh --tests", python.display());
+    let policy = format!("python:chunks:make?python={}&batch=2&size=4&devices=cpu,cpu", python.display());
+    let run = dir.join("run");
+    let fixtures = repo_root().join("tests/fixtures/python_policies");
+    let out = libero_e2e::pipeline_with_env(
+        &["run", s, "--out", run.to_str().unwrap(), "--policy", &policy, "--max-steps", "8", "--processes", "2"],
+        &[("PYTHONPATH", fixtures.to_str().unwrap())],
+    );
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("manifest.json")).unwrap()).unwrap();
+    let named = manifest["policy"].as_str().unwrap().to_string();
+    assert!(named.contains("devices=cpu,cpu"), "{named}");
+    let share = named.replace("devices=cpu,cpu", "devices=cpu");
+    for k in 0..2 {
+        let says = format!(
+            "[process {k}/2] 2 of the run's 4 episodes are this process's (0 already finished, 2 to run); policy {share}"
+        );
+        assert!(stderr.contains(&says), "{stderr}");
+    }
+    // (the policy text has a comma: compared in SQL, not split out of CSV)
+    let stored =
+        sql_rows(&run, &format!("SELECT COUNT(DISTINCT policy), BOOL_AND(policy = '{named}') FROM episodes"), &[]);
+    assert_eq!(stored, vec![vec!["1".to_string(), "true".to_string()]], "every episode under the run's policy");
+    assert_eq!(
+        sql_rows(&run, "SELECT COUNT(*) FROM episodes WHERE error_kind IS NULL", &[]),
+        vec![vec!["4".to_string()]]
+    );
 }

@@ -111,9 +111,6 @@ pub struct Args {
     /// process renders every camera through one GL thread (docs: GPUs, Several GPUs).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     processes: u32,
-    /// Set by --processes on each of its processes: the share of the spec rows this one runs.
-    #[arg(long, hide = true)]
-    process_share: Option<crate::processes::Share>,
     /// At the end of a run, merge its one-episode parts into a few large files (`pipeline compact`)
     /// once there are at least this many (0: never). Re-scoring 2000 episodes takes 2.1 s over
     /// 4000 parts and 0.2 s compacted; compacting them takes ~9 s.
@@ -141,7 +138,9 @@ pub struct Args {
 pub fn run(bundles: &Path, args: Args) -> Result<()> {
     // A scheduler that does not answer stops the run before anything is read or written.
     tokio::runtime::Runtime::new()?.block_on(args.engine.engine.check())?;
-    let fan_out = args.processes > 1 && args.process_share.is_none();
+    // a process that `run --processes` started: its share of the rows and devices
+    let process_share = crate::processes::Share::from_env()?;
+    let fan_out = args.processes > 1 && process_share.is_none();
     if args.processes > 1 && !matches!(args.engine.engine, Engine::Local) {
         bail!(
             "--processes {} runs this machine's processes; with --engine {} the cluster's executors run the episodes: drop one of them",
@@ -150,12 +149,12 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         );
     }
     // the policy this process runs: with --processes, its share of the devices
-    let policy = match args.process_share {
+    let policy = match &process_share {
         Some(share) => args.policy.device_share(share.k, share.n).map_err(anyhow::Error::msg)?,
         None => args.policy.clone(),
     };
     if fan_out {
-        crate::processes::policies(&args.policy, args.processes as usize)?;
+        crate::processes::check(&args.policy, args.processes as usize)?;
     }
     let raw = specs::read_spec_file(&args.specs)?;
     let benchmark = specs::spec_benchmark(&raw, &args.specs.display().to_string())?;
@@ -193,7 +192,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     let tasks: BTreeSet<(Suite, u32)> =
         specs.keys.iter().filter_map(|k| Some((k.suite.parse().ok()?, k.task_id as u32))).collect();
     libero_sim::bundle_integrity::verify_tasks(&set, &tasks)?;
-    let jobs = match args.process_share {
+    let jobs = match &process_share {
         Some(share) => {
             Some(share.jobs(args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))))
         }
@@ -236,7 +235,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     };
     // the workers' cameras on GPUs without the model where the machine has such GPUs; a process of
     // --processes has its share of the GPUs, and renders on them as a one-GPU machine does
-    match args.process_share {
+    match process_share {
         None => libero_sim::gl::keep_renders_off(&policy.model_cuda_devices()),
         Some(_) => libero_sim::gl::keep_renders_on(&policy.model_cuda_devices()),
     }
@@ -254,7 +253,12 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             Some(b) => format!("{:x}", Sha256::digest(b.provenance.to_string().as_bytes())),
         },
         policy: args.policy.name(),
-        policy_identity: args.policy.resolve_identity(benchmark)?,
+        // a process of --processes takes its parent's, from the stored manifest: resolving it again
+        // would hash the checkpoint or start a Python host once more in every process
+        policy_identity: match process_share {
+            None => args.policy.resolve_identity(benchmark)?,
+            Some(_) => serde_json::Value::Null,
+        },
         // ALOHA-sim's loops (lerobot's, openpi's) have no settling steps
         num_steps_wait: match benchmark {
             Benchmark::Libero => args.wait_steps as i32,
@@ -295,14 +299,18 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             bail!("{} is being compacted by pid {} on {}; run it when that has finished", store.url(), c.pid, c.host);
         }
         let stored = store.read_manifest().await?;
-        if let Some(share) = args.process_share
-            && stored.as_ref().is_none_or(|m| m.run_config != manifest.run_config)
-        {
-            bail!(
-                "--process-share {share} is set by `pipeline run --processes`, for a run whose manifest it wrote first; {} has {}. Run `pipeline run` without --process-share.",
-                store.url(),
-                if stored.is_none() { "no manifest" } else { "another configuration" }
-            );
+        if let Some(share) = &process_share {
+            let parent = stored.as_ref().with_context(|| {
+                format!("process {share} of `pipeline run --processes` found no manifest in {}", store.url())
+            })?;
+            manifest.policy_identity = parent.policy_identity.clone();
+            manifest.run_config = hex16(&Sha256::digest(manifest.config_fingerprint().as_bytes()));
+            if parent.run_config != manifest.run_config {
+                bail!(
+                    "process {share} of `pipeline run --processes` sees another configuration than its parent wrote:\n  {}",
+                    manifest.config_differences(parent).join("\n  ")
+                );
+            }
         }
         match stored {
             Some(stored) if stored.bundle_format_version != manifest.bundle_format_version => {
@@ -325,7 +333,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             None => {}
         }
         // a process of --processes finds the manifest, the specs and the parts as its parent left them
-        if args.process_share.is_none() {
+        if process_share.is_none() {
             write_manifest(&store, &manifest).await?;
             store.put("specs.parquet", parquet_bytes(&specs.batch, None)?).await?;
 
@@ -338,11 +346,14 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             }
         }
         let finished = compaction::finished_part_names(&store).await?;
-        let pending: Vec<u32> = (0..specs.keys.len() as u32)
-            .filter(|&i| args.process_share.is_none_or(|share| share.owns(i)))
-            .filter(|&i| !finished.contains(&specs.keys[i as usize].part_name()))
-            .collect();
-        match args.process_share {
+        let pending: Vec<u32> = match &process_share {
+            None => (0..specs.keys.len() as u32).collect(),
+            Some(share) => share.rows.clone(),
+        }
+        .into_iter()
+        .filter(|&i| !finished.contains(&specs.keys[i as usize].part_name()))
+        .collect();
+        match &process_share {
             None => eprintln!(
                 "run {} · policy {} · {} episodes ({} already finished, {} to run) · config {}",
                 store.url(),
@@ -352,18 +363,15 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
                 pending.len(),
                 manifest.run_config
             ),
-            Some(share) => {
-                let owned = (0..specs.keys.len() as u32).filter(|&i| share.owns(i)).count();
-                eprintln!(
-                    "{owned} of the run's {} episodes are this process's ({} already finished, {} to run); policy {}",
-                    specs.keys.len(),
-                    owned - pending.len(),
-                    pending.len(),
-                    policy
-                );
-            }
+            Some(share) => eprintln!(
+                "{} of the run's {} episodes are this process's ({} already finished, {} to run); policy {policy}",
+                share.rows.len(),
+                specs.keys.len(),
+                share.rows.len() - pending.len(),
+                pending.len(),
+            ),
         }
-        if let Some(share) = args.process_share {
+        if let Some(share) = &process_share {
             // the parent holds the writer lock, compacts and prints the results
             if !pending.is_empty() {
                 let ctx = RunInputs { set: &set, aloha: aloha.as_ref(), specs: &specs, manifest: &manifest, store: &store };
@@ -376,7 +384,9 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             let lock = compaction::WriterLock::this_process(now_rfc3339());
             store.put("writer.json", serde_json::to_vec(&lock)?.into()).await?;
             let ran = if fan_out {
-                crate::processes::run_children(&args.policy, args.processes as usize, pending.len(), &store).await
+                // the Python hosts the identity started hold models this process will not use
+                libero_policies::python_host::release_parked_hosts();
+                crate::processes::run_children(&args.policy, &pending, args.processes as usize, &store).await
             } else {
                 let ctx = RunInputs { set: &set, aloha: aloha.as_ref(), specs: &specs, manifest: &manifest, store: &store };
                 run_pending(&args, &policy, &ctx, &protocol, &tasks, pending, None).await
@@ -468,7 +478,7 @@ async fn run_pending(
     protocol: &RunProtocol,
     tasks: &BTreeSet<(Suite, u32)>,
     pending: Vec<u32>,
-    share: Option<crate::processes::Share>,
+    share: Option<&crate::processes::Share>,
 ) -> Result<()> {
     let RunInputs { set, aloha, specs, manifest, store } = *inputs;
     let progress = match share {
@@ -493,6 +503,8 @@ async fn run_pending(
     if let Some(b) = aloha {
         ctx = ctx.with_aloha(b.clone());
     }
+    // a process of --processes runs its share of the devices; its episodes are the run's policy's
+    ctx = ctx.with_policy_label(manifest.policy.clone());
     if args.test_episode_delay_ms > 0 {
         ctx = ctx.with_episode_delay(std::time::Duration::from_millis(args.test_episode_delay_ms));
     }

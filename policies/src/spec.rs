@@ -314,9 +314,18 @@ impl PolicySpec {
     /// (each then loads its own model, on the default device). An error when the list is shorter
     /// than `n`, which would leave a process without a device.
     pub fn device_share(&self, k: usize, n: usize) -> Result<PolicySpec, String> {
+        if n == 1 {
+            return Ok(self.clone());
+        }
         let share = |devices: &[ModelDevice]| -> Result<Vec<ModelDevice>, String> {
             if devices.is_empty() {
-                return Ok(Vec::new());
+                // each process would load its own model on the default device, leaving the
+                // machine's other GPUs idle: the devices are the user's to say
+                let listed = (0..n).map(|i| format!("cuda:{i}")).collect::<Vec<_>>().join(",");
+                return Err(format!(
+                    "--processes {n} deals the policy's devices out, but {} lists none: add devices={listed} (or one device {n} times, for {n} replicas on it)",
+                    self.name()
+                ));
             }
             if devices.len() < n {
                 return Err(format!(
@@ -333,9 +342,25 @@ impl PolicySpec {
             #[cfg(feature = "torch")]
             PolicySpec::OpenVla(o) | PolicySpec::Oft(o) => o.devices = share(&o.devices)?,
             PolicySpec::Python(o) => o.devices = share(&o.devices)?,
+            PolicySpec::TorchScript { .. } => {
+                return Err(format!(
+                    "--processes {n}: torchscript: runs on one device, so every process would load its own copy there; run it in one process"
+                ));
+            }
             _ => {}
         }
         Ok(policy)
+    }
+
+    /// How many devices the policy string lists (`devices=`; 0 for none and for policies without
+    /// a device list).
+    pub fn model_devices_listed(&self) -> usize {
+        match self {
+            #[cfg(feature = "torch")]
+            PolicySpec::OpenVla(o) | PolicySpec::Oft(o) => o.devices.len(),
+            PolicySpec::Python(o) => o.devices.len(),
+            _ => 0,
+        }
     }
 
     /// The CUDA devices an in-process model of this policy runs on (none for the others): a run
@@ -1237,9 +1262,13 @@ mod tests {
         assert_eq!(share(four, 3, 4).unwrap(), "oft:/c?batch=64&devices=cuda:3");
         assert_eq!(share(four, 1, 2).unwrap(), "oft:/c?batch=64&devices=cuda:1,cuda:3");
         assert_eq!(share("lerobot:/c?devices=cuda:0,cuda:1", 1, 2).unwrap(), "lerobot:/c?devices=cuda:1");
-        // no device list, or no model: the same policy in every process
-        assert_eq!(share("openvla:/c?batch=8", 1, 2).unwrap(), "openvla:/c?batch=8");
+        // no model: the same policy in every process; a model without a device list is refused
         assert_eq!(share("expert", 1, 3).unwrap(), "expert");
+        assert_eq!(share("openpi:ws://h:1", 0, 2).unwrap(), "openpi:ws://h:1");
+        let err = share("openvla:/c?batch=8", 1, 2).unwrap_err();
+        assert!(err.contains("lists none") && err.contains("devices=cuda:0,cuda:1"), "{err}");
+        assert!(share("torchscript:/m.pt", 0, 2).unwrap_err().contains("one device"));
+        assert_eq!(share("openvla:/c?batch=8", 0, 1).unwrap(), "openvla:/c?batch=8");
         let err = share("openvla:/c?batch=8&devices=cuda:0,cuda:1", 0, 4).unwrap_err();
         assert!(
             err.contains("--processes 4") && err.contains("lists 2") && err.contains("ask for 2 processes"),

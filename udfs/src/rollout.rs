@@ -41,6 +41,10 @@ use std::sync::{Arc, Mutex, OnceLock, Weak};
 pub struct RolloutContext {
     pub bundles: Arc<BundleSet>,
     pub policy: PolicySpec,
+    /// The policy as the run names it in `episodes.policy`: `policy`'s own text, except in a
+    /// process of `pipeline run --processes`, whose `policy` holds only its share of the devices
+    /// while its episodes belong to the run's policy ([`RolloutContext::with_policy_label`]).
+    policy_label: String,
     pub protocol: RunProtocol,
     pub run_config: String,
     /// The manifest as JSON, stored in every part's key-value metadata.
@@ -207,6 +211,7 @@ impl RolloutContext {
     ) -> Self {
         RolloutContext {
             bundles,
+            policy_label: policy.name(),
             policy,
             protocol,
             run_config,
@@ -234,6 +239,12 @@ impl RolloutContext {
     /// nor overwrites an episode.
     pub fn skipping_stored_episodes(mut self) -> Self {
         self.skip_stored_episodes = true;
+        self
+    }
+
+    /// Store `label` as the episodes' policy (the run's, where `policy` is one process's share).
+    pub fn with_policy_label(mut self, label: String) -> Self {
+        self.policy_label = label;
         self
     }
 
@@ -495,7 +506,7 @@ fn run_row(
     let steps = steps?;
     let params = perturbation.canonical();
     let ectx = EpisodeContext {
-        policy: &ctx.policy.name(),
+        policy: &ctx.policy_label,
         perturbation_params: params.as_deref(),
         run_config: &ctx.run_config,
         protocol: &protocol,

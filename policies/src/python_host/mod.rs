@@ -511,6 +511,14 @@ fn split_actions<const D: usize>(reply: &Frame, batch: usize) -> Result<Vec<Vec<
 /// Hosts started by [`resolve_identity`], waiting for the run's first worker to take them.
 static PARKED: Mutex<Vec<PythonHostModel>> = Mutex::new(Vec::new());
 
+/// Stop the hosts [`resolve_identity`] left for replicas this process will not run (the parent of
+/// `pipeline run --processes`, whose episodes run in other processes): each holds its model.
+pub fn release_parked_hosts() {
+    if let Ok(mut parked) = PARKED.lock() {
+        parked.clear();
+    }
+}
+
 /// Starts one host to read the policy's description for the run manifest (before any episode:
 /// a policy that cannot load stops the run here), and leaves it for the run's replica on that
 /// device.

@@ -2,7 +2,7 @@
 //! binary store the rows one process stores, each process records its session, and a process
 //! that dies mid-run costs only its unfinished episodes, named, which the same command resumes.
 
-use libero_e2e::{ok, pipeline, pipeline_bin, repo_root, sql_rows, test_dir};
+use libero_e2e::{ok, pipeline, pipeline_bin, repo_root, spatial_task0_specs, sql_rows, test_dir};
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -67,9 +67,8 @@ fn two_processes_store_what_one_does() {
 #[test]
 fn a_process_that_dies_costs_its_unfinished_episodes_and_the_run_resumes() {
     let dir = test_dir("processes", "dies");
-    let specs = dir.join("specs.parquet");
+    let specs = spatial_task0_specs(&dir, "4");
     let s = specs.to_str().unwrap();
-    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0", "--trials", "4", "-o", s]));
     let run = dir.join("run");
     let r = run.to_str().unwrap();
     let args = [
@@ -141,9 +140,8 @@ fn a_process_that_dies_costs_its_unfinished_episodes_and_the_run_resumes() {
 #[test]
 fn each_process_serves_its_device_and_stores_the_runs_policy() {
     let dir = test_dir("processes", "devices");
-    let specs = dir.join("specs.parquet");
+    let specs = spatial_task0_specs(&dir, "4");
     let s = specs.to_str().unwrap();
-    ok(pipeline(&["specs", "--suites", "libero_spatial", "--tasks", "0", "--trials", "4", "-o", s]));
     let python = repo_root().join(".lerobot-venv/bin/python");
     assert!(python.exists(), "no venv at {}: run ./setup.sh --tests", python.display());
     let policy = format!("python:chunks:make?python={}&batch=2&size=4&devices=cpu,cpu", python.display());

@@ -138,19 +138,12 @@ pub fn run(args: RunArgs) -> Result<()> {
 /// `queries/step_timing.sql` over the run, as labelled lines (one row: the run's figures); returns
 /// the run's policy steps per second.
 fn print_step_timing(runtime: &tokio::runtime::Runtime, run: &str) -> Result<Option<f64>> {
-    use arrow::array::{Array, AsArray};
-    use arrow::datatypes::Float64Type;
     let batches = runtime.block_on(async {
         let (ctx, _) = crate::session::open(run, crate::session::SuccessDefinition::AnyStep, None).await?;
         crate::session::queries::run(&ctx, crate::session::queries::STEP_TIMING).await
     })?;
     let Some(batch) = batches.iter().find(|b| b.num_rows() > 0) else { return Ok(None) };
-    let value = |name: &str| -> Option<f64> {
-        let column = arrow::compute::cast(batch.column_by_name(name)?, &arrow::datatypes::DataType::Float64).ok()?;
-        let column = column.as_primitive::<Float64Type>();
-        (!column.is_null(0)).then(|| column.value(0))
-    };
-    let show = |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
+    let value = |name: &str| f64_at(batch, name, 0);
     println!("where the time goes (queries/step_timing.sql; stored per-step timings):");
     let Some(span) = value("span_s") else {
         println!("  (no timings: the run predates tables v5)");
@@ -214,32 +207,25 @@ fn print_projection(runtime: &tokio::runtime::Runtime, lengths: &str, rate: f64,
     let Some(first) = batches.first() else { bail!("queries/protocol_projection.sql returned nothing") };
     let table = arrow::compute::concat_batches(&first.schema(), &batches)?;
     let text = |c: &str, r: usize| -> Result<String> {
+        use arrow::array::Array;
         let column = table.column_by_name(c).with_context(|| format!("protocol_projection.sql has no {c}"))?;
         Ok(if column.is_null(r) { "-".into() } else { arrow::util::display::array_value_to_string(column, r)? })
     };
-    let number = |c: &str, r: usize, digits: usize| -> Result<String> {
-        use arrow::array::{Array, AsArray};
-        let column = arrow::compute::cast(
-            table.column_by_name(c).with_context(|| format!("protocol_projection.sql has no {c}"))?,
-            &arrow::datatypes::DataType::Float64,
-        )?;
-        let column = column.as_primitive::<arrow::datatypes::Float64Type>();
-        Ok(if column.is_null(r) { "-".into() } else { format!("{:.digits$}", column.value(r)) })
-    };
+    let number = |c: &str, r: usize, digits: usize| show(f64_at(&table, c, r), digits);
     let mut missing = Vec::new();
     for r in 0..table.num_rows() {
         let suite = text("suite", r)?;
-        if number("policy_steps", r, 0)? == "-" && suite.starts_with("libero") {
+        if f64_at(&table, "policy_steps", r).is_none() && suite.starts_with("libero") {
             missing.push(suite.clone());
         }
         println!(
             "  {suite:<16} {:>9} {:>10} {:>22} {:>5} {:>13} {:>9}",
             text("episodes", r)?,
             text("successes", r)?,
-            number("mean_success_steps", r, 1)?,
+            number("mean_success_steps", r, 1),
             text("cap", r)?,
-            number("policy_steps", r, 0)?,
-            number("minutes", r, 1)?
+            number("policy_steps", r, 0),
+            number("minutes", r, 1)
         );
     }
     if !missing.is_empty() {
@@ -250,4 +236,17 @@ fn print_projection(runtime: &tokio::runtime::Runtime, lengths: &str, rate: f64,
         );
     }
     Ok(())
+}
+
+/// Column `name` of `batch` at `row`, cast to f64; `None` for a null or a column the query lacks.
+fn f64_at(batch: &arrow::array::RecordBatch, name: &str, row: usize) -> Option<f64> {
+    use arrow::array::{Array, AsArray};
+    let column = arrow::compute::cast(batch.column_by_name(name)?, &arrow::datatypes::DataType::Float64).ok()?;
+    let column = column.as_primitive::<arrow::datatypes::Float64Type>();
+    (!column.is_null(row)).then(|| column.value(row))
+}
+
+/// A figure with `digits` decimals, or `-` for none.
+fn show(v: Option<f64>, digits: usize) -> String {
+    v.map_or("-".to_string(), |v| format!("{v:.digits$}"))
 }

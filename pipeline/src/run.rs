@@ -363,21 +363,22 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
                 pending.len(),
                 manifest.run_config
             ),
-            Some(share) => eprintln!(
-                "{} of the run's {} episodes are this process's ({} already finished, {} to run); policy {policy}",
-                share.rows.len(),
-                specs.keys.len(),
-                share.rows.len() - pending.len(),
-                pending.len(),
-            ),
-        }
-        if let Some(share) = &process_share {
-            // the parent holds the writer lock, compacts and prints the results
-            if !pending.is_empty() {
-                let ctx = RunInputs { set: &set, aloha: aloha.as_ref(), specs: &specs, manifest: &manifest, store: &store };
-                run_pending(&args, &policy, &ctx, &protocol, &tasks, pending, Some(share)).await?;
+            Some(share) => {
+                eprintln!(
+                    "{} of the run's {} episodes are this process's ({} already finished, {} to run); policy {policy}",
+                    share.rows.len(),
+                    specs.keys.len(),
+                    share.rows.len() - pending.len(),
+                    pending.len(),
+                );
+                // the parent holds the writer lock, compacts and prints the results
+                if !pending.is_empty() {
+                    let ctx =
+                        RunInputs { set: &set, aloha: aloha.as_ref(), specs: &specs, manifest: &manifest, store: &store };
+                    run_pending(&args, &policy, &ctx, &protocol, &tasks, pending, Some(share)).await?;
+                }
+                return Ok(());
             }
-            return Ok(());
         }
         if !pending.is_empty() {
             // While this runs, `pipeline compact` refuses the run (compaction::WriterLock).
@@ -458,8 +459,6 @@ fn check_noise_sizes(spec_file: &Path, policy: &PolicySpec, specs: &specs::Specs
     )
 }
 
-/// Run the pending episodes through the rollout UDF, then record what this invocation did.
-#[allow(clippy::too_many_arguments)]
 /// What a run's episodes are made from and written to.
 struct RunInputs<'a> {
     set: &'a Arc<BundleSet>,
@@ -469,8 +468,9 @@ struct RunInputs<'a> {
     store: &'a RunStore,
 }
 
-/// Run the `pending` spec rows with `policy` in this process. `share`: this process is one of
-/// `--processes` (no progress bar of its own: the parent shows the run's).
+/// Run the `pending` spec rows with `policy` in this process through the rollout UDF, then record
+/// what this invocation did. `share`: this process is one of `--processes` (no progress bar of its
+/// own: the parent shows the run's).
 async fn run_pending(
     args: &Args,
     policy: &PolicySpec,

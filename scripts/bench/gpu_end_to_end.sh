@@ -23,14 +23,12 @@ runs=("${@:-32:32:4}")
 mkdir -p "$out"
 work=${TMPDIR:-/tmp}/libero-gpu-e2e; mkdir -p "$work"
 
-. scripts/bench/gpu_setup.sh
 model=${MODEL:-openvla}
 case "$model" in
-  openvla) ;;
-  oft) [ -f "$work/oft-7b/action_head--150000_checkpoint.pt" ] || python3 scripts/reference/oft_from_openvla.py "$ckpt" "$work/oft-7b"
-       ckpt="$work/oft-7b" ;;
+  openvla | oft) ;;
   *) echo "MODEL=$model: openvla or oft" >&2; exit 2 ;;
 esac
+. scripts/bench/gpu_setup.sh
 
 nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used,power.draw --format=csv,noheader -lms 250 > "$out/nvidia-smi.csv" &
 smi=$!

@@ -12,12 +12,8 @@ set -euo pipefail
 carry=$(realpath "$1"); out=$(realpath -m "$2"); model=$3; batches=$4
 mkdir -p "$out"
 work=${TMPDIR:-/tmp}/libero-gpu-e2e; mkdir -p "$work"
-. scripts/bench/gpu_setup.sh
-flag=()
-if [ "$model" = oft ]; then
-  [ -f "$work/oft-7b/action_head--150000_checkpoint.pt" ] || python3 scripts/reference/oft_from_openvla.py "$ckpt" "$work/oft-7b"
-  ckpt="$work/oft-7b"; flag=(--oft)
-fi
+MODEL=$model . scripts/bench/gpu_setup.sh
+flag=(); [ "$model" = oft ] && flag=(--oft)
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader | tee "$out/forward-$model.log"
 "$BENCH" --checkpoint "$ckpt" "${flag[@]}" --attention sdpa --device cuda --batch "$batches" \
   --warmup "${WARMUP:-3}" --iters "${ITERS:-10}" --json "$out/forward-$model.json" 2>&1 | tee -a "$out/forward-$model.log"

@@ -1,7 +1,8 @@
 # Sourced by the GPU-machine scripts (gpu_end_to_end.sh, gpu_scaling.sh): unpacks what
 # scripts/bench/gpu_carry.sh made into $work, sets up NVIDIA's EGL and libtorch from the machine's
-# torch, and writes OpenVLA-7B's random bf16 weights. Expects $carry and $work; sets $P (the
-# pipeline), $ckpt (the checkpoint) and, where the carry has it, $BENCH (policies/benches/openvla.rs).
+# torch, and writes OpenVLA-7B's random bf16 weights (with MODEL=oft, OFT-7B's heads too). Expects
+# $carry and $work; sets $P (the pipeline), $ckpt (the checkpoint: OpenVLA-7B's, or OFT-7B's with
+# MODEL=oft) and, where the carry has it, $BENCH (policies/benches/openvla.rs).
 # The machine needs python3 with torch 2.11 (libtorch for tch, and the random 7B weights) and the
 # NVIDIA driver's EGL. Weights are random (none can be downloaded there).
 
@@ -35,4 +36,11 @@ P="$work/pipeline"
 if [ -z "${NO_OPENVLA:-}" ]; then
   ckpt="$work/openvla-7b"; mkdir -p "$ckpt"; cp "$carry"/openvla-7b/* "$ckpt"/
   [ -f "$ckpt/model-00004-of-00004.safetensors" ] || python3 scripts/reference/fill_random_weights.py "$ckpt"
+fi
+
+# OFT-7B (MODEL=oft): OpenVLA-7B's random backbone with OFT's two heads drawn on it, in the released
+# layout (scripts/reference/oft_from_openvla.py); $ckpt then names it
+if [ "${MODEL:-openvla}" = oft ]; then
+  [ -f "$work/oft-7b/action_head--150000_checkpoint.pt" ] || python3 scripts/reference/oft_from_openvla.py "$ckpt" "$work/oft-7b"
+  ckpt="$work/oft-7b"
 fi

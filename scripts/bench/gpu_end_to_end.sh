@@ -13,6 +13,7 @@
 # MAX_STEPS=N caps every episode at N policy steps (default: the suite's cap, 220).
 # MODEL=oft runs OpenVLA-OFT 7B (`oft:`; its heads drawn by scripts/reference/oft_from_openvla.py on
 # OpenVLA-7B's random backbone) instead of OpenVLA-7B (`openvla:`, the default).
+# RENDER=cpu renders the cameras on Mesa's llvmpipe (MESA=STAGE, see gpu_setup.sh) instead of the GPU.
 # ENGINE=ballista://HOST:PORT runs the episodes on that cluster's executors instead of in this
 # process (JOBS is then unused: the executors' slots decide how many run at once).
 # What the machine needs: scripts/bench/gpu_setup.sh. Weights are random (none can be downloaded
@@ -29,16 +30,18 @@ case "$model" in
   *) echo "MODEL=$model: openvla or oft" >&2; exit 2 ;;
 esac
 . scripts/bench/gpu_setup.sh
+renders=()
+if [ "${RENDER:-gpu}" = cpu ]; then renders=(env MUJOCO_EGL_DEVICE_ID="${SOFTWARE_EGL_DEVICE:?RENDER=cpu needs MESA}"); fi
 
 nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used,power.draw --format=csv,noheader -lms 250 > "$out/nvidia-smi.csv" &
 smi=$!
 trap 'kill $smi 2>/dev/null || true' EXIT
 for r in "${runs[@]}"; do
   IFS=: read -r jobs batch trials options <<< "$r"
-  name="$model-spatial-j${jobs}-b${batch}-t${trials}${options:+-$(echo "$options" | tr -c 'a-z0-9\n' '_')}"
+  name="$model-spatial-j${jobs}-b${batch}-t${trials}${options:+-$(echo "$options" | tr -c 'a-z0-9\n' '_')}${RENDER:+-$RENDER-renders}"
   "$P" --bundles "$work/bundles" specs --suites libero_spatial --trials "$trials" -o "$work/$name.parquet"
   echo "::: $name: start $(date -u +%FT%T.%3NZ)" | tee -a "$out/runs.log"
-  "$P" --bundles "$work/bundles" run "$work/$name.parquet" --out "$out/$name" \
+  "${renders[@]}" "$P" --bundles "$work/bundles" run "$work/$name.parquet" --out "$out/$name" \
     --policy "$model:$ckpt?unnorm=libero_spatial_no_noops&batch=$batch${options:+&$options}" --jobs "$jobs" ${MAX_STEPS:+--max-steps "$MAX_STEPS"} ${ENGINE:+--engine "$ENGINE"} 2>&1 | tee "$out/$name.log" | grep -v '^|\|^+' || true
   echo "::: $name: end $(date -u +%FT%T.%3NZ)" | tee -a "$out/runs.log"
   "$P" --bundles "$work/bundles" bench run --run "$out/$name" --no-rescoring | tee "$out/$name.bench.txt"

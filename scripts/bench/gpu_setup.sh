@@ -1,7 +1,7 @@
 # Sourced by the GPU-machine scripts (gpu_end_to_end.sh, gpu_scaling.sh): unpacks what
 # scripts/bench/gpu_carry.sh made into $work, sets up NVIDIA's EGL and libtorch from the machine's
 # torch, and writes OpenVLA-7B's random bf16 weights (with MODEL=oft, OFT-7B's heads too). Expects
-# $carry and $work; sets $P (the pipeline), $ckpt (the checkpoint: OpenVLA-7B's, or OFT-7B's with
+# $carry and $work (and MESA, below, to render on the CPU); sets $P (the pipeline), $ckpt (the checkpoint: OpenVLA-7B's, or OFT-7B's with
 # MODEL=oft) and, where the carry has it, $BENCH (policies/benches/openvla.rs).
 # The machine needs python3 with torch 2.11 (libtorch for tch, and the random 7B weights) and the
 # NVIDIA driver's EGL. Weights are random (none can be downloaded there).
@@ -12,6 +12,16 @@ if ! ldconfig -p | grep -q libEGL.so.1; then
 fi
 [ -f /usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json ] &&
   export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+# MESA=STAGE (staged by gpu_mesa_stage.sh): Mesa's llvmpipe beside the NVIDIA driver, as in the
+# :cuda image; $SOFTWARE_EGL_DEVICE is then its EGL device index (MUJOCO_EGL_DEVICE_ID renders there)
+if [ -n "${MESA:-}" ]; then
+  [ -f "$MESA/50_mesa.json" ] || { echo "MESA=$MESA: nothing staged there (scripts/bench/gpu_mesa_stage.sh)" >&2; exit 1; }
+  if [ -z "${__EGL_VENDOR_LIBRARY_FILENAMES:-}" ]; then
+    __EGL_VENDOR_LIBRARY_FILENAMES=$(ls /usr/share/glvnd/egl_vendor.d/*.json /etc/glvnd/egl_vendor.d/*.json 2>/dev/null | paste -sd: || true)
+  fi
+  export __EGL_VENDOR_LIBRARY_FILENAMES="${__EGL_VENDOR_LIBRARY_FILENAMES:+$__EGL_VENDOR_LIBRARY_FILENAMES:}$MESA/50_mesa.json"
+  export LIBGL_DRIVERS_PATH="$MESA/dri"
+fi
 
 # the pipeline, the bench, libmujoco and the bundles
 xz -dc "$carry/pipeline.xz" > "$work/pipeline"; chmod +x "$work/pipeline"
@@ -24,12 +34,21 @@ mkdir -p "$work/bundles"; xz -dc "$carry/bundles.tar.xz" | tar -xf - -C "$work/b
 # libtorch from the machine's torch (the version tch was built against), CUDA's libraries beside it
 torch_lib=$(python3 -c 'import os, torch; print(os.path.join(os.path.dirname(torch.__file__), "lib"))')
 nv_libs=$(python3 -c 'import glob, os, torch; r = os.path.dirname(os.path.dirname(torch.__file__)); print(":".join(sorted(glob.glob(os.path.join(r, "nvidia", "*", "lib")) + glob.glob(os.path.join(r, "nvidia", "cu*", "lib")))))')
-export LD_LIBRARY_PATH="$torch_lib:$nv_libs:$carry/lib:${LD_LIBRARY_PATH:-}"
+export LD_LIBRARY_PATH="$torch_lib:$nv_libs:$carry/lib:${LD_LIBRARY_PATH:-}${MESA:+:$MESA/lib}"
 # libtorch's CUDA backend: the binary loads it at start from here (no LD_PRELOAD); the folders on
 # LD_LIBRARY_PATH serve the CPU libraries and NVRTC for our kernels
 export LIBERO_TORCH_CUDA_LIB="$torch_lib"
 P="$work/pipeline"
 "$P" --version
+if [ -n "${MESA:-}" ]; then
+  for i in 0 1 2 3 4 5 6 7 8; do
+    probe=$(MUJOCO_EGL_DEVICE_ID=$i "$P" --bundles "$work/bundles" bench render --frames 1 --python none --suites libero_spatial 2>&1 || true)
+    if [[ $probe == *"software: true"* ]]; then
+      SOFTWARE_EGL_DEVICE=$i; break
+    fi
+  done
+  echo "Mesa's software EGL device: ${SOFTWARE_EGL_DEVICE:?none among EGL devices 0-8}"
+fi
 
 # OpenVLA-7B: the layout carried, the random bf16 weights written here (unless NO_OPENVLA is set:
 # scripts/bench/gpu_python_host.sh brings its own model)

@@ -13,7 +13,8 @@
 # MAX_STEPS=N caps every episode at N policy steps (default: the suite's cap, 220).
 # MODEL=oft runs OpenVLA-OFT 7B (`oft:`; its heads drawn by scripts/reference/oft_from_openvla.py on
 # OpenVLA-7B's random backbone) instead of OpenVLA-7B (`openvla:`, the default).
-# RENDER=cpu renders the cameras on Mesa's llvmpipe (MESA=STAGE, see gpu_setup.sh) instead of the GPU.
+# RENDER=cpu renders the cameras on Mesa's llvmpipe instead of the GPU; it needs MESA=STAGE (Mesa
+# staged by gpu_mesa_stage.sh; see gpu_setup.sh).
 # ENGINE=ballista://HOST:PORT runs the episodes on that cluster's executors instead of in this
 # process (JOBS is then unused: the executors' slots decide how many run at once).
 # What the machine needs: scripts/bench/gpu_setup.sh. Weights are random (none can be downloaded
@@ -31,7 +32,11 @@ case "$model" in
 esac
 . scripts/bench/gpu_setup.sh
 renders=()
-if [ "${RENDER:-gpu}" = cpu ]; then renders=(env MUJOCO_EGL_DEVICE_ID="${SOFTWARE_EGL_DEVICE:?RENDER=cpu needs MESA}"); fi
+case "${RENDER:-}" in
+  "") ;;
+  cpu) renders=(env MUJOCO_EGL_DEVICE_ID="${SOFTWARE_EGL_DEVICE:?RENDER=cpu needs MESA}") ;;
+  *) echo "RENDER=$RENDER: cpu, or unset for the GPU" >&2; exit 2 ;;
+esac
 
 nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used,power.draw --format=csv,noheader -lms 250 > "$out/nvidia-smi.csv" &
 smi=$!

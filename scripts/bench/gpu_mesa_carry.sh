@@ -10,8 +10,9 @@ set -euo pipefail
 carry=$(realpath -m "$1"); stage=${2:-/tmp/mesa}
 tmp=$(mktemp -d); trap 'rm -rf "$tmp"' EXIT
 mkdir -p "$carry" "$tmp/lib" "$tmp/dri"
-egl=$(ldconfig -p | awk '/libEGL_mesa.so.0 .*x86-64/ {print $NF; exit}')
-dri=$(dirname "$(ldconfig -p | awk '/libglapi.so.0 .*x86-64/ {print $NF; exit}')")/dri/swrast_dri.so
+cache=$(ldconfig -p)  # read once: an awk that exits early would fail `ldconfig -p |` under pipefail
+egl=$(awk '/libEGL_mesa.so.0 .*x86-64/ {print $NF; exit}' <<< "$cache")
+dri=$(dirname "$(awk '/libglapi.so.0 .*x86-64/ {print $NF; exit}' <<< "$cache")")/dri/swrast_dri.so
 [ -f "$dri" ] || dri=/usr/lib/x86_64-linux-gnu/dri/swrast_dri.so
 cp -L "$egl" "$tmp/lib/"; cp -L "$dri" "$tmp/dri/"
 ldd "$egl" "$dri" | awk '$2 == "=>" && $3 ~ /^\// {print $3}' | sort -u |

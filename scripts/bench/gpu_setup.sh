@@ -1,4 +1,5 @@
-# Sourced by the GPU-machine scripts (gpu_end_to_end.sh, gpu_scaling.sh): unpacks what
+# Sourced by the GPU-machine scripts (gpu_end_to_end.sh, gpu_forward.sh, gpu_scaling.sh and the
+# others of scripts/bench/gpu_*.sh): unpacks what
 # scripts/bench/gpu_carry.sh made into $work, sets up NVIDIA's EGL and libtorch from the machine's
 # torch, and writes OpenVLA-7B's random bf16 weights (with MODEL=oft, OFT-7B's heads too). Expects
 # $carry and $work (and MESA, below, to render on the CPU); sets $P (the pipeline), $ckpt (the checkpoint: OpenVLA-7B's, or OFT-7B's with
@@ -7,20 +8,25 @@
 # NVIDIA driver's EGL. Weights are random (none can be downloaded there).
 
 # NVIDIA's EGL through glvnd (the machine has the vendor library, not always the dispatcher)
-if ! ldconfig -p | grep -q libEGL.so.1; then
+if [[ $(ldconfig -p) != *libEGL.so.1* ]]; then  # not `| grep -q`: under pipefail its early exit fails the test
   for f in "$carry"/gl/*.deb; do dpkg -x "$f" /; done; ldconfig
 fi
 [ -f /usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json ] &&
   export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
 # MESA=STAGE (staged by gpu_mesa_stage.sh): Mesa's llvmpipe beside the NVIDIA driver, as in the
 # :cuda image; $SOFTWARE_EGL_DEVICE is then its EGL device index (MUJOCO_EGL_DEVICE_ID renders there)
+unset SOFTWARE_EGL_DEVICE
 if [ -n "${MESA:-}" ]; then
   [ -f "$MESA/50_mesa.json" ] || { echo "MESA=$MESA: nothing staged there (scripts/bench/gpu_mesa_stage.sh)" >&2; exit 1; }
+  MESA=$(realpath "$MESA")
   if [ -z "${__EGL_VENDOR_LIBRARY_FILENAMES:-}" ]; then
     __EGL_VENDOR_LIBRARY_FILENAMES=$(ls /usr/share/glvnd/egl_vendor.d/*.json /etc/glvnd/egl_vendor.d/*.json 2>/dev/null | paste -sd: || true)
   fi
-  export __EGL_VENDOR_LIBRARY_FILENAMES="${__EGL_VENDOR_LIBRARY_FILENAMES:+$__EGL_VENDOR_LIBRARY_FILENAMES:}$MESA/50_mesa.json"
-  export LIBGL_DRIVERS_PATH="$MESA/dri"
+  case ":$__EGL_VENDOR_LIBRARY_FILENAMES:" in
+    *":$MESA/50_mesa.json:"*) ;;
+    *) __EGL_VENDOR_LIBRARY_FILENAMES="${__EGL_VENDOR_LIBRARY_FILENAMES:+$__EGL_VENDOR_LIBRARY_FILENAMES:}$MESA/50_mesa.json" ;;
+  esac
+  export __EGL_VENDOR_LIBRARY_FILENAMES LIBGL_DRIVERS_PATH="$MESA/dri"
 fi
 
 # the pipeline, the bench, libmujoco and the bundles
@@ -34,7 +40,7 @@ mkdir -p "$work/bundles"; xz -dc "$carry/bundles.tar.xz" | tar -xf - -C "$work/b
 # libtorch from the machine's torch (the version tch was built against), CUDA's libraries beside it
 torch_lib=$(python3 -c 'import os, torch; print(os.path.join(os.path.dirname(torch.__file__), "lib"))')
 nv_libs=$(python3 -c 'import glob, os, torch; r = os.path.dirname(os.path.dirname(torch.__file__)); print(":".join(sorted(glob.glob(os.path.join(r, "nvidia", "*", "lib")) + glob.glob(os.path.join(r, "nvidia", "cu*", "lib")))))')
-export LD_LIBRARY_PATH="$torch_lib:$nv_libs:$carry/lib:${LD_LIBRARY_PATH:-}${MESA:+:$MESA/lib}"
+export LD_LIBRARY_PATH="$torch_lib:$nv_libs:$carry/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}${MESA:+:$MESA/lib}"
 # libtorch's CUDA backend: the binary loads it at start from here (no LD_PRELOAD); the folders on
 # LD_LIBRARY_PATH serve the CPU libraries and NVRTC for our kernels
 export LIBERO_TORCH_CUDA_LIB="$torch_lib"

@@ -135,8 +135,9 @@ fn a_process_that_dies_costs_its_unfinished_episodes_and_the_run_resumes() {
     assert_eq!(sql_rows(&run, "SELECT COUNT(*) FROM episodes", &[]), vec![vec!["4".to_string()]]);
 }
 
-/// A model policy's devices dealt out: each process runs its own replica on its device, and the
-/// episodes it stores are the run's policy (the manifest's, every device listed), not its share's.
+/// A model policy's devices dealt out: each process runs its own replica on its device, the
+/// episodes it stores are the run's policy (the manifest's, every device listed), not its share's,
+/// and its session record says where its cameras rendered.
 #[test]
 fn each_process_serves_its_device_and_stores_the_runs_policy() {
     let dir = test_dir("processes", "devices");
@@ -144,7 +145,8 @@ fn each_process_serves_its_device_and_stores_the_runs_policy() {
     let s = specs.to_str().unwrap();
     let python = repo_root().join(".lerobot-venv/bin/python");
     assert!(python.exists(), "no venv at {}: run ./setup.sh --tests", python.display());
-    let policy = format!("python:chunks:make?python={}&batch=2&size=4&devices=cpu,cpu", python.display());
+    // a policy that sees both cameras, so each process renders
+    let policy = format!("python:sees:make?python={}&batch=2&size=32&devices=cpu,cpu", python.display());
     let run = dir.join("run");
     let fixtures = repo_root().join("tests/fixtures/python_policies");
     let out = libero_e2e::pipeline_with_env(
@@ -172,4 +174,25 @@ fn each_process_serves_its_device_and_stores_the_runs_policy() {
         sql_rows(&run, "SELECT COUNT(*) FROM episodes WHERE error_kind IS NULL", &[]),
         vec![vec!["4".to_string()]]
     );
+    // each process records where its cameras rendered (the policy asks for images), and `bench run`
+    // says it per invocation; the parent, which renders nothing, leaves no record of its own
+    let bench = pipeline(&["bench", "run", "--run", run.to_str().unwrap(), "--no-rescoring"]);
+    let said = String::from_utf8_lossy(&bench.stdout);
+    assert!(bench.status.success(), "{said}{}", String::from_utf8_lossy(&bench.stderr));
+    let records: Vec<serde_json::Value> = std::fs::read_dir(run.join("sessions"))
+        .unwrap()
+        .map(|f| serde_json::from_slice(&std::fs::read(f.unwrap().path()).unwrap()).unwrap())
+        .collect();
+    assert_eq!(records.len(), 2, "a record per process");
+    for record in &records {
+        let devices = record["render_devices"].as_array().expect("render_devices");
+        assert!(!devices.is_empty(), "{record}");
+        assert_eq!(record["model_gpus"], serde_json::json!([]), "the model ran on the CPU: {record}");
+        let vendor = devices[0]["vendor"].as_str().unwrap();
+        let line = format!("cameras of {}: ", record["started_at"].as_str().unwrap());
+        let shown = said.lines().find(|l| l.trim_start().starts_with(&line)).unwrap_or_else(|| panic!("{said}"));
+        assert!(shown.contains(vendor), "{shown}");
+        let software = devices[0]["software"].as_bool().unwrap();
+        assert_eq!(shown.contains("software: the CPU"), software, "{shown}");
+    }
 }

@@ -1,7 +1,8 @@
 //! `pipeline bench run --run RUN`: the figures of a stored run at scale, printed.
 //!
 //! - each `pipeline run` invocation that ran episodes: episodes, wall time, episodes/s, workers,
-//!   peak RSS and task-model compiles (from `RUN/sessions/*.json`, which the run writes);
+//!   peak RSS, task-model compiles and the devices its cameras rendered on (from
+//!   `RUN/sessions/*.json`, which the run writes);
 //! - files per table (`steps/`, `episodes/`);
 //! - where a policy step's time goes (render, policy: queue / preparation / forward, env step),
 //!   the episodes per hour, the model's busy fraction and the projected wall time of the canonical
@@ -89,6 +90,11 @@ pub fn run(args: RunArgs) -> Result<()> {
     }
     if sessions.is_empty() {
         println!("  (none recorded: the run predates session records)");
+    }
+    for s in &sessions {
+        if let Some(renders) = s.renders() {
+            println!("  cameras of {}: {renders}", s.started_at);
+        }
     }
     for (table, n) in &files {
         println!("files in {table}/: {n}");

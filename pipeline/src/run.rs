@@ -550,6 +550,8 @@ async fn run_pending(
         task_compiles: ctx.task_compiles(),
         peak_rss_bytes: peak_rss_bytes(),
         host: compaction::hostname(),
+        render_devices: libero_sim::gl::render_devices_used(),
+        model_gpus: libero_sim::gl::model_gpus(),
     };
     // a cluster's run counts no workers here (its executors' slots ran the episodes)
     let ran_on =
@@ -563,6 +565,9 @@ async fn run_pending(
         record.task_compiles,
         record.tasks
     );
+    if let Some(renders) = record.renders() {
+        eprintln!("cameras rendered on: {renders}");
+    }
     let name = format!("sessions/{}-{}.json", record.started_at.replace(':', ""), std::process::id());
     store.put(&name, serde_json::to_vec_pretty(&record)?.into()).await?;
     // whether the batched policy's forwards were full (?batch=N and --jobs)
@@ -592,6 +597,47 @@ pub struct SessionRecord {
     /// The process's peak resident set (Linux VmHWM), the whole run included.
     pub peak_rss_bytes: Option<u64>,
     pub host: String,
+    /// The devices this invocation's cameras rendered on; empty where its episodes ran on a
+    /// cluster, for the parent of `--processes` (its children record theirs), and in records made
+    /// before this field.
+    #[serde(default)]
+    pub render_devices: Vec<libero_sim::gl::RenderDevice>,
+    /// The CUDA devices its model ran on, as the policy's `devices=` numbers them.
+    #[serde(default)]
+    pub model_gpus: Vec<i64>,
+}
+
+impl SessionRecord {
+    /// Where the cameras rendered, in words, or `None` where nothing was recorded.
+    ///
+    /// Why it is said: it decides a run's speed more than anything else on the machine. On the
+    /// model's GPU the renders' GPU time adds to the forwards' (about 2.6 ms a camera pair on an
+    /// H200), and on Mesa's llvmpipe a GPU run's renders were 20× slower than on its GPU
+    /// (`data/benchmarks/gpu-renders-h200-2026-11-29`).
+    pub fn renders(&self) -> Option<String> {
+        if self.render_devices.is_empty() {
+            return None;
+        }
+        let each: Vec<String> = self
+            .render_devices
+            .iter()
+            .map(|d| {
+                let device =
+                    d.egl_device.map_or("Mesa's surfaceless platform".to_string(), |i| format!("EGL device {i}"));
+                if d.software {
+                    return format!("{device} ({}, software: the CPU)", d.vendor);
+                }
+                let cuda = d.cuda.map(|c| format!(", cuda:{c}")).unwrap_or_default();
+                let beside = if d.cuda.is_some_and(|c| self.model_gpus.contains(&c)) {
+                    " (the model's GPU: the renders' GPU time adds to its forwards')"
+                } else {
+                    ""
+                };
+                format!("{device} ({}{cuda}){beside}", d.vendor)
+            })
+            .collect();
+        Some(each.join("; "))
+    }
 }
 
 fn local_engine() -> String {
@@ -725,4 +771,50 @@ fn hex16(d: &[u8]) -> String {
 /// UTC now as RFC 3339 (seconds).
 fn now_rfc3339() -> String {
     chrono::Utc::now().to_rfc3339_opts(chrono::SecondsFormat::Secs, true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use libero_sim::gl::RenderDevice;
+
+    fn record(render_devices: Vec<RenderDevice>, model_gpus: Vec<i64>) -> SessionRecord {
+        SessionRecord {
+            started_at: "2026-11-29T00:00:00Z".into(),
+            wall_s: 1.0,
+            episodes: 1,
+            tasks: 1,
+            engine: local_engine(),
+            workers: 1,
+            task_compiles: 1,
+            peak_rss_bytes: None,
+            host: "h".into(),
+            render_devices,
+            model_gpus,
+        }
+    }
+
+    fn nvidia(egl: usize, cuda: i64) -> RenderDevice {
+        RenderDevice { egl_device: Some(egl), vendor: "NVIDIA".into(), software: false, cuda: Some(cuda) }
+    }
+
+    #[test]
+    fn a_record_says_whether_the_cameras_shared_the_models_gpu_or_ran_on_the_cpu() {
+        let shared = record(vec![nvidia(0, 0)], vec![0]).renders().unwrap();
+        assert_eq!(
+            shared,
+            "EGL device 0 (NVIDIA, cuda:0) (the model's GPU: the renders' GPU time adds to its forwards')"
+        );
+        let apart = record(vec![nvidia(1, 1)], vec![0]).renders().unwrap();
+        assert_eq!(apart, "EGL device 1 (NVIDIA, cuda:1)");
+        let mesa = RenderDevice { egl_device: Some(1), vendor: "Mesa Project".into(), software: true, cuda: None };
+        assert_eq!(record(vec![mesa], vec![0]).renders().unwrap(), "EGL device 1 (Mesa Project, software: the CPU)");
+        assert_eq!(record(vec![], vec![0]).renders(), None, "nothing recorded, nothing said");
+        // a record written before the fields reads as one with nothing recorded
+        let old: SessionRecord = serde_json::from_str(
+            r#"{"started_at":"x","wall_s":1.0,"episodes":1,"tasks":1,"workers":1,"task_compiles":1,"peak_rss_bytes":null,"host":"h"}"#,
+        )
+        .unwrap();
+        assert_eq!((old.render_devices.len(), old.model_gpus.len()), (0, 0));
+    }
 }

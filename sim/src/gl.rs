@@ -10,6 +10,7 @@
 
 use crate::SimError;
 use khronos_egl as egl;
+use std::collections::BTreeSet;
 use std::ffi::{CStr, c_void};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Mutex, OnceLock};
@@ -113,13 +114,15 @@ impl GlContext {
         lib.make_current(display, None, None, Some(context))
             .map_err(|e| no_gl(format!("eglMakeCurrent (surfaceless) failed: {e}")))?;
         let vendor = lib.query_string(Some(display), egl::VENDOR).map(|s| s.to_string_lossy().into_owned());
-        Ok(GlContext {
+        let gl = GlContext {
             display,
             context,
             device,
             vendor: vendor.unwrap_or_default(),
             _not_send: std::marker::PhantomData,
-        })
+        };
+        RENDER_DEVICES.lock().expect("render devices").insert(RenderDevice::of(&gl));
+        Ok(gl)
     }
 
     /// "Mesa Project" (CPU, llvmpipe) or "NVIDIA" (GPU), as EGL reports it.
@@ -202,6 +205,47 @@ fn open_display(lib: &Egl, device: Option<&DeviceInfo>) -> Result<egl::Display, 
     }
     unsafe { lib.get_platform_display(PLATFORM_SURFACELESS_MESA, egl::DEFAULT_DISPLAY, &[egl::ATTRIB_NONE]) }
         .map_err(|e| no_gl(format!("no EGL device and no surfaceless platform ({e})")))
+}
+
+/// A device this process's GL contexts rendered on ([`render_devices_used`]).
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
+pub struct RenderDevice {
+    /// EGL's index of the device; `None` on Mesa's surfaceless platform (no device list).
+    pub egl_device: Option<usize>,
+    /// As EGL reports it: "NVIDIA", "Mesa Project".
+    pub vendor: String,
+    /// Mesa's software device (llvmpipe): the renders ran on the CPU.
+    pub software: bool,
+    /// The CUDA device it is, where the NVIDIA driver says ([`DeviceInfo::cuda`]).
+    pub cuda: Option<i64>,
+}
+
+impl RenderDevice {
+    fn of(gl: &GlContext) -> RenderDevice {
+        let device = gl.device();
+        RenderDevice {
+            egl_device: device.map(|d| d.index),
+            vendor: gl.vendor().to_string(),
+            software: device.is_none_or(|d| d.software),
+            cuda: device.and_then(|d| d.cuda),
+        }
+    }
+}
+
+/// Every device this process has made a GL context on, whatever chose it (the placement below,
+/// `MUJOCO_EGL_DEVICE_ID`, or the software fallback).
+static RENDER_DEVICES: Mutex<BTreeSet<RenderDevice>> = Mutex::new(BTreeSet::new());
+
+/// The devices this process's cameras rendered on so far, for a run's session record: whether a
+/// run rendered on the CPU or on its model's GPU is what its speed depends on most
+/// (`data/benchmarks/gpu-renders-h200-2026-11-29`).
+pub fn render_devices_used() -> Vec<RenderDevice> {
+    RENDER_DEVICES.lock().expect("render devices").iter().cloned().collect()
+}
+
+/// The CUDA devices this process said its model runs on ([`keep_renders_off`], [`keep_renders_on`]).
+pub fn model_gpus() -> Vec<i64> {
+    MODEL_GPUS.lock().expect("model GPUs").0.clone()
 }
 
 /// Contexts this process has made: each new one goes to the next hardware device in turn.

@@ -13,6 +13,8 @@
 # MAX_STEPS=N caps every episode at N policy steps (default: the suite's cap, 220).
 # MODEL=oft runs OpenVLA-OFT 7B (`oft:`; its heads drawn by scripts/reference/oft_from_openvla.py on
 # OpenVLA-7B's random backbone) instead of OpenVLA-7B (`openvla:`, the default).
+# PROCESSES=N runs the episodes in N processes (`pipeline run --processes N`: the policy's devices=
+# dealt out, each process rendering on its own GPU).
 # RENDER=cpu renders the cameras on Mesa's llvmpipe instead of the GPU; it needs MESA=STAGE (Mesa
 # staged by gpu_mesa_stage.sh; see gpu_setup.sh).
 # ENGINE=ballista://HOST:PORT runs the episodes on that cluster's executors instead of in this
@@ -43,11 +45,11 @@ smi=$!
 trap 'kill $smi 2>/dev/null || true' EXIT
 for r in "${runs[@]}"; do
   IFS=: read -r jobs batch trials options <<< "$r"
-  name="$model-spatial-j${jobs}-b${batch}-t${trials}${options:+-$(echo "$options" | tr -c 'a-z0-9\n' '_')}${RENDER:+-$RENDER-renders}"
+  name="$model-spatial-j${jobs}-b${batch}-t${trials}${options:+-$(echo "$options" | tr -c 'a-z0-9\n' '_')}${RENDER:+-$RENDER-renders}${PROCESSES:+-p$PROCESSES}"
   "$P" --bundles "$work/bundles" specs --suites libero_spatial --trials "$trials" -o "$work/$name.parquet"
   echo "::: $name: start $(date -u +%FT%T.%3NZ)" | tee -a "$out/runs.log"
   "${renders[@]}" "$P" --bundles "$work/bundles" run "$work/$name.parquet" --out "$out/$name" \
-    --policy "$model:$ckpt?unnorm=libero_spatial_no_noops&batch=$batch${options:+&$options}" --jobs "$jobs" ${MAX_STEPS:+--max-steps "$MAX_STEPS"} ${ENGINE:+--engine "$ENGINE"} 2>&1 | tee "$out/$name.log" | grep -v '^|\|^+' || true
+    --policy "$model:$ckpt?unnorm=libero_spatial_no_noops&batch=$batch${options:+&$options}" --jobs "$jobs" ${MAX_STEPS:+--max-steps "$MAX_STEPS"} ${PROCESSES:+--processes "$PROCESSES"} ${ENGINE:+--engine "$ENGINE"} 2>&1 | tee "$out/$name.log" | grep -v '^|\|^+' || true
   echo "::: $name: end $(date -u +%FT%T.%3NZ)" | tee -a "$out/runs.log"
   "$P" --bundles "$work/bundles" bench run --run "$out/$name" --no-rescoring | tee "$out/$name.bench.txt"
   # the attention the manifest records (with, for SDPA on a GPU, whether cuDNN's attention was kept last)

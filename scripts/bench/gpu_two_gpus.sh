@@ -3,12 +3,15 @@
 # (scripts/bench/gpu_end_to_end.sh: OpenVLA-7B random weights, libero_spatial, MAX_STEPS, default 60):
 #   one: a replica on cuda:0 with the renders on that GPU too (MUJOCO_EGL_DEVICE_ID: what a machine
 #        with one GPU does), JOBS workers, TRIALS trials per task;
-#   two: a replica on each of cuda:0 and cuda:1 with the default GL thread, twice the workers and
-#        the episodes (the same per GPU);
-#   processes: the same as two, in a process per GPU: a localhost Ballista cluster of two
+#   two: a replica on each of the first GPUS GPUs (default 2) with the default GL thread, GPUS
+#        times the workers and the episodes (the same per GPU);
+#   split: the same in a process per GPU, `pipeline run --processes GPUS` (each process its replica,
+#        its share of the workers and its renders on its own GPU: issue 46, item 1);
+#   processes: the same as two (two GPUs), in a process per GPU: a localhost Ballista cluster of two
 #        `pipeline executor`s, each with one GPU (CUDA_VISIBLE_DEVICES, MUJOCO_EGL_DEVICE_ID: its
 #        own replica, GL thread and renders) and JOBS slots;
-# then the ratio of each to one's policy steps/s. Machines of one kind differ by up to ~15% from
+# then the ratio of each to one's policy steps/s, and vmstat's samples over each run (the cores it
+# used). Machines of one kind differ by up to ~15% from
 # lease to lease (data/benchmarks/gpu-two-h100-one-gl-thread-2026-11-27): a ratio means something
 # only within one call. MODES (default "one two") picks the runs and their order; EGL_DEVICES (see
 # below) skips the EGL probes.
@@ -46,8 +49,11 @@ pids=()
 trap 'kill "${pids[@]}" 2>/dev/null || true' EXIT
 free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
 
+gpus=${GPUS:-2}
+all_devices=$(seq -s, -f 'cuda:%g' 0 $((gpus - 1)))
 one() { MUJOCO_EGL_DEVICE_ID=$egl0 run_e2e one "$jobs:64:$trials:devices=cuda:0"; }
-two() { run_e2e two "$((2 * jobs)):64:$((2 * trials)):devices=cuda:0,cuda:1"; }
+two() { run_e2e two "$((gpus * jobs)):64:$((gpus * trials)):devices=$all_devices"; }
+split() { PROCESSES=$gpus run_e2e split "$((gpus * jobs)):64:$((gpus * trials)):devices=$all_devices"; }
 processes() {
   local port; port=$(free_port)
   "$P" scheduler --bind 127.0.0.1 --port "$port" 2> "$out/processes-scheduler.log" & pids+=($!)
@@ -62,7 +68,10 @@ processes() {
 }
 run_e2e() {
   local name=$1 run=$2
-  MAX_STEPS=${MAX_STEPS:-60} bash scripts/bench/gpu_end_to_end.sh "$carry" "$work/runs/$name" "$run" > "$out/$name.log" 2>&1
+  vmstat -t 5 > "$out/$name-vmstat.txt" & local v=$!
+  MAX_STEPS=${MAX_STEPS:-60} bash scripts/bench/gpu_end_to_end.sh "$carry" "$work/runs/$name" "$run" > "$out/$name.log" 2>&1 ||
+    echo "$name failed: $(tail -3 "$out/$name.log")" | tee -a "$out/figures.txt"
+  kill $v 2>/dev/null || true
   find "$work/runs/$name" -maxdepth 1 -type f \( -name '*.txt' -o -name '*.csv' -o -name '*.log' \) \
     -exec sh -c 'cp "$1" "$2/'"$name"'-$(basename "$1")"' _ {} "$out" \;
   grep -A6 'where the time goes' "$out/$name.log" | sed "s/^/$name: /" | tee -a "$out/figures.txt"
@@ -72,6 +81,6 @@ for mode in "${modes[@]}"; do "$mode"; done
 rate() { grep -o '[0-9.]* policy steps/s' "$out/$1.log" | head -1 | cut -d' ' -f1; }
 for mode in "${modes[@]}"; do
   [ "$mode" = one ] || [ ! -f "$out/one.log" ] || echo "$mode / one: $(rate "$mode") / $(rate one) = \
-$(python3 -c "print(round($(rate "$mode") / $(rate one), 3))") (JOBS=$jobs TRIALS=$trials per GPU; EGL devices ${egl[*]})" |
+$(python3 -c "print(round($(rate "$mode") / $(rate one), 3))") (JOBS=$jobs TRIALS=$trials per GPU, GPUS=$gpus; EGL devices ${egl[*]})" |
     tee -a "$out/figures.txt"
 done

@@ -87,15 +87,14 @@ pub fn run(args: RunArgs) -> Result<()> {
             s.task_compiles,
             s.tasks
         );
+        if let Some(renders) = s.renders() {
+            println!("    cameras: {renders}");
+        }
     }
     if sessions.is_empty() {
         println!("  (none recorded: the run predates session records)");
     }
-    for s in &sessions {
-        if let Some(renders) = s.renders() {
-            println!("  cameras of {}: {renders}", s.started_at);
-        }
-    }
+
     for (table, n) in &files {
         println!("files in {table}/: {n}");
     }

@@ -551,7 +551,12 @@ async fn run_pending(
         peak_rss_bytes: peak_rss_bytes(),
         host: compaction::hostname(),
         render_devices: libero_sim::gl::render_devices_used(),
-        model_gpus: libero_sim::gl::model_gpus(),
+        // a cluster's executors ran the model and the renders, not this process
+        model_gpus: match args.engine.engine {
+            Engine::Local => policy.model_cuda_devices().iter().map(|&d| d as i64).collect(),
+            _ => Vec::new(),
+        },
+        cuda_visible_devices: std::env::var("CUDA_VISIBLE_DEVICES").ok(),
     };
     // a cluster's run counts no workers here (its executors' slots ran the episodes)
     let ran_on =
@@ -598,13 +603,19 @@ pub struct SessionRecord {
     pub peak_rss_bytes: Option<u64>,
     pub host: String,
     /// The devices this invocation's cameras rendered on; empty where its episodes ran on a
-    /// cluster, for the parent of `--processes` (its children record theirs), and in records made
-    /// before this field.
+    /// cluster's executors (they keep no record) and in records made before this field. The parent
+    /// of `--processes` writes no record; each of its processes writes its own.
     #[serde(default)]
     pub render_devices: Vec<libero_sim::gl::RenderDevice>,
-    /// The CUDA devices its model ran on, as the policy's `devices=` numbers them.
+    /// The CUDA devices the policy's `devices=` names for its model, as that list numbers them.
+    /// Empty where the policy does not say (a model on the CPU, `torchscript:` on its default
+    /// device, `python:` without `devices=`, a server's model) or the engine was a cluster.
     #[serde(default)]
     pub model_gpus: Vec<i64>,
+    /// `CUDA_VISIBLE_DEVICES` as the process saw it: with it set, `devices=` numbers only the GPUs
+    /// it lists, while EGL's CUDA device numbers all of them, so the two are not compared.
+    #[serde(default)]
+    pub cuda_visible_devices: Option<String>,
 }
 
 impl SessionRecord {
@@ -618,25 +629,35 @@ impl SessionRecord {
         if self.render_devices.is_empty() {
             return None;
         }
-        let each: Vec<String> = self
-            .render_devices
-            .iter()
-            .map(|d| {
-                let device =
-                    d.egl_device.map_or("Mesa's surfaceless platform".to_string(), |i| format!("EGL device {i}"));
-                if d.software {
-                    return format!("{device} ({}, software: the CPU)", d.vendor);
-                }
-                let cuda = d.cuda.map(|c| format!(", cuda:{c}")).unwrap_or_default();
-                let beside = if d.cuda.is_some_and(|c| self.model_gpus.contains(&c)) {
-                    " (the model's GPU: the renders' GPU time adds to its forwards')"
-                } else {
-                    ""
-                };
-                format!("{device} ({}{cuda}){beside}", d.vendor)
-            })
-            .collect();
+        let each: Vec<String> = self.render_devices.iter().map(|d| self.render_device(d)).collect();
         Some(each.join("; "))
+    }
+
+    /// One device in words, with what is known of the model beside it.
+    fn render_device(&self, d: &libero_sim::gl::RenderDevice) -> String {
+        let device = d.egl_device.map_or("Mesa's surfaceless platform".to_string(), |i| format!("EGL device {i}"));
+        if d.software {
+            let hint = if self.model_gpus.is_empty() {
+                ""
+            } else {
+                " while the model ran on a GPU: install the NVIDIA driver's EGL library, or set \
+                 MUJOCO_EGL_DEVICE_ID to an NVIDIA device (`pipeline doctor` lists them)"
+            };
+            return format!("{device}, {}'s software renderer on the CPU{hint}", d.vendor);
+        }
+        let cuda = d.cuda.map(|c| format!(" cuda:{c}")).unwrap_or_default();
+        let model = match (d.cuda, self.model_gpus.is_empty(), &self.cuda_visible_devices) {
+            (_, true, _) => String::new(),
+            (_, false, Some(visible)) => {
+                format!(", the model's GPU or not (not compared: CUDA_VISIBLE_DEVICES={visible})")
+            }
+            (Some(c), false, None) if self.model_gpus.contains(&c) => {
+                ", the model's GPU: renders and forwards take turns on it".to_string()
+            }
+            (Some(_), false, None) => ", a GPU without the model".to_string(),
+            (None, false, None) => ", the model's GPU or not (the driver names no CUDA device)".to_string(),
+        };
+        format!("{device}, {}{cuda}{model}", d.vendor)
     }
 }
 
@@ -791,6 +812,7 @@ mod tests {
             host: "h".into(),
             render_devices,
             model_gpus,
+            cuda_visible_devices: None,
         }
     }
 
@@ -800,21 +822,35 @@ mod tests {
 
     #[test]
     fn a_record_says_whether_the_cameras_shared_the_models_gpu_or_ran_on_the_cpu() {
-        let shared = record(vec![nvidia(0, 0)], vec![0]).renders().unwrap();
+        let said = |devices, models| record(devices, models).renders().unwrap();
         assert_eq!(
-            shared,
-            "EGL device 0 (NVIDIA, cuda:0) (the model's GPU: the renders' GPU time adds to its forwards')"
+            said(vec![nvidia(0, 0)], vec![0]),
+            "EGL device 0, NVIDIA cuda:0, the model's GPU: renders and forwards take turns on it"
         );
-        let apart = record(vec![nvidia(1, 1)], vec![0]).renders().unwrap();
-        assert_eq!(apart, "EGL device 1 (NVIDIA, cuda:1)");
-        let mesa = RenderDevice { egl_device: Some(1), vendor: "Mesa Project".into(), software: true, cuda: None };
-        assert_eq!(record(vec![mesa], vec![0]).renders().unwrap(), "EGL device 1 (Mesa Project, software: the CPU)");
+        assert_eq!(said(vec![nvidia(1, 1)], vec![0]), "EGL device 1, NVIDIA cuda:1, a GPU without the model");
+        // a policy that does not name its devices: nothing is claimed about the model
+        assert_eq!(said(vec![nvidia(0, 0)], vec![]), "EGL device 0, NVIDIA cuda:0");
+        let mut hidden = record(vec![nvidia(1, 1)], vec![0]);
+        hidden.cuda_visible_devices = Some("1".into());
+        assert_eq!(
+            hidden.renders().unwrap(),
+            "EGL device 1, NVIDIA cuda:1, the model's GPU or not (not compared: CUDA_VISIBLE_DEVICES=1)"
+        );
+        let mesa = || RenderDevice { egl_device: Some(1), vendor: "Mesa Project".into(), software: true, cuda: None };
+        assert_eq!(said(vec![mesa()], vec![]), "EGL device 1, Mesa Project's software renderer on the CPU");
+        let beside_a_gpu_model = said(vec![mesa()], vec![0]);
+        assert!(
+            beside_a_gpu_model.contains("while the model ran on a GPU")
+                && beside_a_gpu_model.contains("MUJOCO_EGL_DEVICE_ID"),
+            "{beside_a_gpu_model}"
+        );
+        assert_eq!(said(vec![nvidia(0, 0), nvidia(1, 1)], vec![0]).matches("; ").count(), 1, "every device said");
         assert_eq!(record(vec![], vec![0]).renders(), None, "nothing recorded, nothing said");
         // a record written before the fields reads as one with nothing recorded
         let old: SessionRecord = serde_json::from_str(
             r#"{"started_at":"x","wall_s":1.0,"episodes":1,"tasks":1,"workers":1,"task_compiles":1,"peak_rss_bytes":null,"host":"h"}"#,
         )
         .unwrap();
-        assert_eq!((old.render_devices.len(), old.model_gpus.len()), (0, 0));
+        assert_eq!((old.render_devices.len(), old.model_gpus.len(), old.cuda_visible_devices), (0, 0, None));
     }
 }

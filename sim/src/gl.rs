@@ -214,7 +214,8 @@ pub struct RenderDevice {
     pub egl_device: Option<usize>,
     /// As EGL reports it: "NVIDIA", "Mesa Project".
     pub vendor: String,
-    /// Mesa's software device (llvmpipe): the renders ran on the CPU.
+    /// Mesa's software device (llvmpipe): the renders ran on the CPU. Mesa's surfaceless platform
+    /// (no device list) counts as software, as `pipeline doctor` and the GL threads take it.
     pub software: bool,
     /// The CUDA device it is, where the NVIDIA driver says ([`DeviceInfo::cuda`]).
     pub cuda: Option<i64>,
@@ -241,11 +242,6 @@ static RENDER_DEVICES: Mutex<BTreeSet<RenderDevice>> = Mutex::new(BTreeSet::new(
 /// (`data/benchmarks/gpu-renders-h200-2026-11-29`).
 pub fn render_devices_used() -> Vec<RenderDevice> {
     RENDER_DEVICES.lock().expect("render devices").iter().cloned().collect()
-}
-
-/// The CUDA devices this process said its model runs on ([`keep_renders_off`], [`keep_renders_on`]).
-pub fn model_gpus() -> Vec<i64> {
-    MODEL_GPUS.lock().expect("model GPUs").0.clone()
 }
 
 /// Contexts this process has made: each new one goes to the next hardware device in turn.

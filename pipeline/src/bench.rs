@@ -36,8 +36,8 @@ pub enum Bench {
     Render(RenderArgs),
     /// A stored run's figures: episodes/s, peak RSS, files per table, re-scoring time.
     ///
-    /// The episodes/s, peak RSS and render devices of each invocation that ran episodes, the files per table,
-    /// and the wall time of re-scoring it (results under each definition, report). Reads the
+    /// The episodes/s, peak RSS and render devices of each invocation that ran episodes, the files
+    /// per table, and the wall time of re-scoring it (results under each definition, report). Reads the
     /// run's sessions/*.json and step timings (where a policy step's time goes, the projected
     /// wall time of the canonical protocol), then times `pipeline results` and `pipeline report`
     /// on it, each a fresh process (median of --repeats). Printed.

@@ -94,7 +94,6 @@ pub fn run(args: RunArgs) -> Result<()> {
     if sessions.is_empty() {
         println!("  (none recorded: the run predates session records)");
     }
-
     for (table, n) in &files {
         println!("files in {table}/: {n}");
     }

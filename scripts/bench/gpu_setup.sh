@@ -47,13 +47,9 @@ export LIBERO_TORCH_CUDA_LIB="$torch_lib"
 P="$work/pipeline"
 "$P" --version
 if [ -n "${MESA:-}" ]; then
-  for i in 0 1 2 3 4 5 6 7 8; do
-    probe=$(MUJOCO_EGL_DEVICE_ID=$i "$P" --bundles "$work/bundles" bench render --frames 1 --python none --suites libero_spatial 2>&1 || true)
-    if [[ $probe == *"software: true"* ]]; then
-      SOFTWARE_EGL_DEVICE=$i; break
-    fi
-  done
-  echo "Mesa's software EGL device: ${SOFTWARE_EGL_DEVICE:?none among EGL devices 0-8}"
+  # `pipeline doctor` lists EGL's devices: "devices [0: hardware, CUDA device 0, 1: software (Mesa llvmpipe)]"
+  SOFTWARE_EGL_DEVICE=$("$P" --bundles "$work/bundles" doctor 2>&1 | sed -n 's/.*[[ ]\([0-9][0-9]*\): software (Mesa llvmpipe).*/\1/p' | head -1 || true)
+  echo "Mesa's software EGL device: ${SOFTWARE_EGL_DEVICE:?not among the EGL devices pipeline doctor lists}"
 fi
 
 # OpenVLA-7B: the layout carried, the random bf16 weights written here (unless NO_OPENVLA is set:

@@ -652,7 +652,7 @@ impl SessionRecord {
                 format!(", the model's GPU or not (not compared: CUDA_VISIBLE_DEVICES={visible})")
             }
             (Some(c), false, None) if self.model_gpus.contains(&c) => {
-                ", the model's GPU: renders and forwards take turns on it".to_string()
+                ", the model's GPU: renders and forwards share it, time-sliced".to_string()
             }
             (Some(_), false, None) => ", a GPU without the model".to_string(),
             (None, false, None) => ", the model's GPU or not (the driver names no CUDA device)".to_string(),
@@ -825,7 +825,7 @@ mod tests {
         let said = |devices, models| record(devices, models).renders().unwrap();
         assert_eq!(
             said(vec![nvidia(0, 0)], vec![0]),
-            "EGL device 0, NVIDIA cuda:0, the model's GPU: renders and forwards take turns on it"
+            "EGL device 0, NVIDIA cuda:0, the model's GPU: renders and forwards share it, time-sliced"
         );
         assert_eq!(said(vec![nvidia(1, 1)], vec![0]), "EGL device 1, NVIDIA cuda:1, a GPU without the model");
         // a policy that does not name its devices: nothing is claimed about the model

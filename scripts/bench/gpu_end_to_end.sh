@@ -14,7 +14,8 @@
 # MODEL=oft runs OpenVLA-OFT 7B (`oft:`; its heads drawn by scripts/reference/oft_from_openvla.py on
 # OpenVLA-7B's random backbone) instead of OpenVLA-7B (`openvla:`, the default).
 # PROCESSES=N runs the episodes in N processes (`pipeline run --processes N`: the policy's devices=
-# dealt out, each process rendering on its own GPU).
+# dealt out, each process rendering on its own GPU). Unset, `pipeline run` decides: a process per GPU
+# where devices= lists several GPUs; PROCESSES=1 keeps their replicas in one process.
 # RENDER=cpu renders the cameras on Mesa's llvmpipe instead of the GPU; it needs MESA=STAGE (Mesa
 # staged by gpu_mesa_stage.sh; see gpu_setup.sh).
 # ENGINE=ballista://HOST:PORT runs the episodes on that cluster's executors instead of in this
@@ -47,6 +48,9 @@ for r in "${runs[@]}"; do
   IFS=: read -r jobs batch trials options <<< "$r"
   name="$model-spatial-j${jobs}-b${batch}-t${trials}${options:+-$(echo "$options" | tr -c 'a-z0-9\n' '_')}${RENDER:+-$RENDER-renders}${PROCESSES:+-p$PROCESSES}"
   "$P" --bundles "$work/bundles" specs --suites libero_spatial --trials "$trials" -o "$work/$name.parquet"
+  # a run left in OUT by an earlier call on the same (warm) machine would be resumed, run nothing,
+  # and report its old figures as new
+  rm -rf "${out:?}/$name"
   echo "::: $name: start $(date -u +%FT%T.%3NZ)" | tee -a "$out/runs.log"
   "${renders[@]}" "$P" --bundles "$work/bundles" run "$work/$name.parquet" --out "$out/$name" \
     --policy "$model:$ckpt?unnorm=libero_spatial_no_noops&batch=$batch${options:+&$options}" --jobs "$jobs" ${MAX_STEPS:+--max-steps "$MAX_STEPS"} ${PROCESSES:+--processes "$PROCESSES"} ${ENGINE:+--engine "$ENGINE"} 2>&1 | tee "$out/$name.log" | grep -v '^|\|^+' || true

@@ -18,7 +18,8 @@
 # usage (device tool, repo root): scripts/bench/gpu_failure.sh CARRY OUT
 #   CARRY: scripts/bench/gpu_carry.sh's folder; OUT: the run, its log and the checks' figures.
 #   DEVICES=cuda:0 (or cuda:0,cuda:1), HOG_DEVICE=cuda:0, WARM=8, HOLD=6, TRIALS=8 (x 10 tasks),
-#   JOBS=16, BATCH=16, MAX_STEPS=30, DEADLINE=480.
+#   JOBS=16, BATCH=16, MAX_STEPS=30, DEADLINE=480; PROCESSES=N passes --processes N (unset, two
+#   DEVICES run in a process per GPU, `pipeline run`'s default; PROCESSES=1 keeps one process).
 set -euo pipefail
 carry=$(realpath "$1"); out=$(realpath -m "$2")
 DEVICES=${DEVICES:-cuda:0}; HOG_DEVICE=${HOG_DEVICE:-${DEVICES##*,}}
@@ -33,7 +34,7 @@ rm -rf "$out/run"
 start=$(date +%s.%N)
 PYTORCH_NO_CUDA_MEMORY_CACHING=1 timeout --signal=KILL "$DEADLINE" "$P" --bundles "$work/bundles" run "$work/specs.parquet" \
   --out "$out/run" --policy "openvla:$ckpt?unnorm=libero_spatial_no_noops&batch=$BATCH&devices=$DEVICES" \
-  --jobs "$JOBS" --max-steps "$MAX_STEPS" > "$out/run.stdout" 2> "$out/run.stderr" &
+  --jobs "$JOBS" --max-steps "$MAX_STEPS" ${PROCESSES:+--processes "$PROCESSES"} > "$out/run.stdout" 2> "$out/run.stderr" &
 run=$!
 
 # the replicas are loaded once the run's first episode part is written; then WARM s of forwards

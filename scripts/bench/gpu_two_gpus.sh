@@ -3,10 +3,11 @@
 # (scripts/bench/gpu_end_to_end.sh: OpenVLA-7B random weights, libero_spatial, MAX_STEPS, default 60):
 #   one: a replica on cuda:0 with the renders on that GPU too (MUJOCO_EGL_DEVICE_ID: what a machine
 #        with one GPU does), JOBS workers, TRIALS trials per task;
-#   two: a replica on each of the first GPUS GPUs (default 2) with the default GL thread, GPUS
-#        times the workers and the episodes (the same per GPU);
-#   split: the same in a process per GPU, `pipeline run --processes GPUS` (each process its replica,
-#        its share of the workers and its renders on its own GPU: issue 46, item 1);
+#   two: a replica on each of the first GPUS GPUs (default 2) in one process (`--processes 1`) with
+#        its one GL thread, GPUS times the workers and the episodes (the same per GPU);
+#   split: the same in a process per GPU, `pipeline run --processes GPUS`, which is what `pipeline run`
+#        does by itself for several GPUs (each process its replica, its share of the workers and its
+#        renders on its own GPU: issue 46, item 1);
 #   processes: the same as two (two GPUs), in a process per GPU: a localhost Ballista cluster of two
 #        `pipeline executor`s, each with one GPU (CUDA_VISIBLE_DEVICES, MUJOCO_EGL_DEVICE_ID: its
 #        own replica, GL thread and renders) and JOBS slots;
@@ -52,7 +53,7 @@ free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",
 gpus=${GPUS:-2}
 all_devices=$(seq -s, -f 'cuda:%g' 0 $((gpus - 1)))
 one() { MUJOCO_EGL_DEVICE_ID=$egl0 run_e2e one "$jobs:64:$trials:devices=cuda:0"; }
-two() { run_e2e two "$((gpus * jobs)):64:$((gpus * trials)):devices=$all_devices"; }
+two() { PROCESSES=1 run_e2e two "$((gpus * jobs)):64:$((gpus * trials)):devices=$all_devices"; }
 split() { PROCESSES=$gpus run_e2e split "$((gpus * jobs)):64:$((gpus * trials)):devices=$all_devices"; }
 processes() {
   local port; port=$(free_port)

@@ -89,6 +89,19 @@ pub fn deal(pending: &[u32], n: usize) -> Vec<Vec<u32>> {
     (0..n).map(|k| pending.iter().copied().skip(k).step_by(n).collect()).collect()
 }
 
+/// The processes a run takes when the user does not say: one per GPU where the policy's
+/// `devices=` lists two or more distinct CUDA devices and nothing else, else 1. Why the default:
+/// on two H200s a process per GPU ran 1.956× and 1.986× one GPU's rate, one process 1.849× (its
+/// one GL thread renders both GPUs' cameras; `data/benchmarks/gpu-two-h200-processes-2026-11-29`).
+/// A list with the CPU in it, or one GPU twice (replicas sharing a device), stays in one process:
+/// neither has a second GPU to render on.
+pub fn one_per_gpu(policy: &PolicySpec) -> usize {
+    let gpus = policy.model_cuda_devices();
+    let distinct: std::collections::BTreeSet<usize> = gpus.iter().copied().collect();
+    let listed = policy.model_devices_listed();
+    if listed >= 2 && gpus.len() == listed && distinct.len() == listed { listed } else { 1 }
+}
+
 /// Each process's policy ([`PolicySpec::device_share`]): a device list shorter than N, or a model
 /// policy without one, is an error naming it.
 pub fn policies(policy: &PolicySpec, n: usize) -> Result<Vec<PolicySpec>> {
@@ -250,5 +263,20 @@ mod tests {
         assert_eq!(share.jobs(16), 4);
         assert_eq!(share.jobs(2), 1);
         assert_eq!(Share { k: 1, n: 3, rows: vec![] }.to_string(), "1/3");
+    }
+
+    #[test]
+    fn a_run_takes_a_process_per_gpu_only_where_the_policy_lists_several_distinct_gpus() {
+        let processes = |policy: &str| one_per_gpu(&policy.parse::<PolicySpec>().expect(policy));
+        assert_eq!(processes("openvla:/ckpt?batch=64&devices=cuda:0,cuda:1"), 2);
+        assert_eq!(processes("oft:/ckpt?batch=64&devices=cuda:0,cuda:1,cuda:2,cuda:3"), 4);
+        assert_eq!(processes("python:sees:make?devices=cuda:1,cuda:0"), 2);
+        // one GPU, replicas sharing a GPU, the CPU in the list, no list, no model: one process
+        assert_eq!(processes("openvla:/ckpt?devices=cuda:0"), 1);
+        assert_eq!(processes("openvla:/ckpt?batch=64&devices=cuda:0,cuda:0"), 1);
+        assert_eq!(processes("openvla:/ckpt?batch=64&devices=cuda:0,cpu"), 1);
+        assert_eq!(processes("python:sees:make?devices=cpu,cpu"), 1);
+        assert_eq!(processes("openvla:/ckpt"), 1);
+        assert_eq!(processes("random"), 1);
     }
 }

@@ -105,12 +105,13 @@ pub struct Args {
     /// Parallel episodes (default: one per core); with --processes, shared out among them.
     #[arg(long)]
     jobs: Option<usize>,
-    /// Run the episodes in N processes of this binary instead of one: the policy's devices= dealt
-    /// out among them (process k takes devices k, k+N, ...), each with its share of --jobs and its
-    /// cameras on its own GPUs, as N one-GPU machines. For a machine with several GPUs: one
-    /// process renders every camera through one GL thread (docs: GPUs, Several GPUs).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
-    processes: u32,
+    /// Run the episodes in N processes of this binary: the policy's devices= dealt out among them
+    /// (process k takes devices k, k+N, ...), each with its share of --jobs and its cameras on its
+    /// own GPUs, as N one-GPU machines (one process renders every camera through one GL thread:
+    /// docs: GPUs, Several GPUs). Default: one process per GPU where devices= lists several
+    /// distinct GPUs and the episodes run on this machine, else 1; --processes 1 keeps them in one.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    processes: Option<u32>,
     /// At the end of a run, merge its one-episode parts into a few large files (`pipeline compact`)
     /// once there are at least this many (0: never). Re-scoring 2000 episodes takes 2.1 s over
     /// 4000 parts and 0.2 s compacted; compacting them takes ~9 s.
@@ -140,11 +141,26 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
     tokio::runtime::Runtime::new()?.block_on(args.engine.engine.check())?;
     // a process that `run --processes` started: its share of the rows and devices
     let process_share = crate::processes::Share::from_env()?;
-    let fan_out = args.processes > 1 && process_share.is_none();
-    if args.processes > 1 && !matches!(args.engine.engine, Engine::Local) {
+    let local = matches!(args.engine.engine, Engine::Local);
+    let processes = match (args.processes, &process_share) {
+        (Some(n), _) => n as usize,
+        // a process of --processes runs its share itself
+        (None, Some(_)) => 1,
+        (None, None) if local => {
+            let n = crate::processes::one_per_gpu(&args.policy);
+            if n > 1 {
+                eprintln!(
+                    "{n} processes, one per GPU the policy lists: each runs its share of the episodes with its model and its cameras on its own GPU (--processes 1 runs them all in this process)"
+                );
+            }
+            n
+        }
+        (None, None) => 1,
+    };
+    let fan_out = processes > 1 && process_share.is_none();
+    if processes > 1 && !local {
         bail!(
-            "--processes {} runs this machine's processes; with --engine {} the cluster's executors run the episodes: drop one of them",
-            args.processes,
+            "--processes {processes} runs this machine's processes; with --engine {} the cluster's executors run the episodes: drop one of them",
             args.engine.engine
         );
     }
@@ -154,7 +170,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         None => args.policy.clone(),
     };
     if fan_out {
-        crate::processes::check(&args.policy, args.processes as usize)?;
+        crate::processes::check(&args.policy, processes)?;
     }
     let raw = specs::read_spec_file(&args.specs)?;
     let benchmark = specs::spec_benchmark(&raw, &args.specs.display().to_string())?;
@@ -387,7 +403,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             let ran = if fan_out {
                 // the Python hosts the identity started hold models this process will not use
                 libero_policies::python_host::release_parked_hosts();
-                crate::processes::run_children(&args.policy, &pending, args.processes as usize, &store).await
+                crate::processes::run_children(&args.policy, &pending, processes, &store).await
             } else {
                 let ctx = RunInputs { set: &set, aloha: aloha.as_ref(), specs: &specs, manifest: &manifest, store: &store };
                 run_pending(&args, &policy, &ctx, &protocol, &tasks, pending, None).await

@@ -102,6 +102,22 @@ pub fn one_per_gpu(policy: &PolicySpec) -> usize {
     if listed >= 2 && gpus.len() == listed && distinct.len() == listed { listed } else { 1 }
 }
 
+/// Said on stderr as the processes start: why N processes where the user did not ask for them
+/// (`by_default`), and where a set `MUJOCO_EGL_DEVICE_ID` sends every process's cameras (all to
+/// one device, which may be meant, as with Mesa's software device, but costs the split its point).
+pub fn say_how(n: usize, by_default: bool) {
+    if by_default {
+        eprintln!(
+            "{n} processes, one per GPU the policy lists: each runs its share of the episodes with its model and its cameras on its own GPU (--processes 1 runs them all in this process)"
+        );
+    }
+    if let Ok(device) = std::env::var("MUJOCO_EGL_DEVICE_ID") {
+        eprintln!(
+            "MUJOCO_EGL_DEVICE_ID={device} is set, so all {n} processes render their cameras on EGL device {device}, not each on its own GPU: unset it for that"
+        );
+    }
+}
+
 /// Each process's policy ([`PolicySpec::device_share`]): a device list shorter than N, or a model
 /// policy without one, is an error naming it.
 pub fn policies(policy: &PolicySpec, n: usize) -> Result<Vec<PolicySpec>> {

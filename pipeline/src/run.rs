@@ -146,15 +146,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
         (Some(n), _) => n as usize,
         // a process of --processes runs its share itself
         (None, Some(_)) => 1,
-        (None, None) if local => {
-            let n = crate::processes::one_per_gpu(&args.policy);
-            if n > 1 {
-                eprintln!(
-                    "{n} processes, one per GPU the policy lists: each runs its share of the episodes with its model and its cameras on its own GPU (--processes 1 runs them all in this process)"
-                );
-            }
-            n
-        }
+        (None, None) if local => crate::processes::one_per_gpu(&args.policy),
         (None, None) => 1,
     };
     let fan_out = processes > 1 && process_share.is_none();
@@ -403,6 +395,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             let ran = if fan_out {
                 // the Python hosts the identity started hold models this process will not use
                 libero_policies::python_host::release_parked_hosts();
+                crate::processes::say_how(processes, args.processes.is_none());
                 crate::processes::run_children(&args.policy, &pending, processes, &store).await
             } else {
                 let ctx = RunInputs { set: &set, aloha: aloha.as_ref(), specs: &specs, manifest: &manifest, store: &store };

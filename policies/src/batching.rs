@@ -226,8 +226,9 @@ thread_local! {
 
 /// Whether the process's panic hook reports a panic: not one that says "out of memory" on a
 /// batching thread, which says it itself in one line ("ran out of memory on a batch of N; trying
-/// again") and stores it in the error rows. Reported, each try's panic printed libtorch's C++ stack
-/// too: a 40 s out-of-memory on one of two H200s filled 69 kB of stderr with 20 of them.
+/// again", or, once the tries run out, that its episodes are error rows, which store the message).
+/// Reported, each try's panic printed libtorch's C++ stack too: a 40 s out-of-memory on one of two
+/// H200s filled 69 kB of stderr with 14 of them (`data/benchmarks/gpu-failure-h200-2026-11-29`).
 fn panic_reported(on_batching_thread: bool, payload: &(dyn Any + Send)) -> bool {
     !(on_batching_thread && panic_text(payload).contains("out of memory"))
 }

@@ -6,7 +6,8 @@
 # usage (on the GPU machine, from the repo root): scripts/bench/gpu_end_to_end.sh CARRY OUT [RUN ...]
 #   CARRY: a folder made on the build machine by scripts/bench/gpu_carry.sh (the stripped pipeline,
 #          libmujoco, the task bundles of libero_spatial, OpenVLA-7B's layout and the GL libraries);
-#   OUT:   where the runs, their `bench run` figures and nvidia-smi's samples go;
+#   OUT:   where the runs, their `bench run` figures and nvidia-smi's samples go (a run already
+#          there is deleted first: every run starts afresh, none is resumed);
 #   RUN:   JOBS:BATCH:TRIALS[:OPTIONS] (rollout workers, episodes per forward, trials per task of
 #          libero_spatial's 10 tasks, more options of the policy, e.g. devices=cuda:0,cuda:1 or
 #          quant=int8); default 32:32:4.

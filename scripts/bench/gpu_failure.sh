@@ -76,7 +76,7 @@ taken=$(python3 -c 'import json, sys; print(json.load(open(sys.argv[1]))["taken_
   FROM episodes" --run "$out/run" --csv | tee "$out/checks.csv"
 "$P" sql "SELECT DISTINCT substr(error, 1, 400) AS error FROM episodes WHERE error IS NOT NULL" --run "$out/run" --csv \
   | tee "$out/errors.csv"
-grep -c "ran out of memory on a batch" "$out/run.stderr" | sed 's/^/forwards tried again: /' | tee -a "$out/summary.txt" || true
+grep -c "; trying again" "$out/run.stderr" | sed 's/^/tries again (a forward tried again counts once per pause): /' | tee -a "$out/summary.txt" || true
 python3 - "$out/checks.csv" "$status" "$HOLD" "$out/errors.csv" "$HOG_DEVICE" <<'PY'
 import csv, sys
 row = next(csv.DictReader(open(sys.argv[1])))

@@ -103,15 +103,18 @@ pub fn one_per_gpu(policy: &PolicySpec) -> usize {
 }
 
 /// Said on stderr as the processes start: why N processes where the user did not ask for them
-/// (`by_default`), and where a set `MUJOCO_EGL_DEVICE_ID` sends every process's cameras (all to
-/// one device, which may be meant, as with Mesa's software device, but costs the split its point).
-pub fn say_how(n: usize, by_default: bool) {
+/// (`by_default`), and, where the policy's model is on GPUs, that a set `MUJOCO_EGL_DEVICE_ID`
+/// sends every process's cameras to one device (which may be meant, as with Mesa's software
+/// device, but costs the split its point).
+pub fn say_how(policy: &PolicySpec, n: usize, by_default: bool) {
     if by_default {
         eprintln!(
             "{n} processes, one per GPU the policy lists: each runs its share of the episodes with its model and its cameras on its own GPU (--processes 1 runs them all in this process)"
         );
     }
-    if let Ok(device) = std::env::var("MUJOCO_EGL_DEVICE_ID") {
+    if let Ok(device) = std::env::var("MUJOCO_EGL_DEVICE_ID")
+        && !policy.model_cuda_devices().is_empty()
+    {
         eprintln!(
             "MUJOCO_EGL_DEVICE_ID={device} is set, so all {n} processes render their cameras on EGL device {device}, not each on its own GPU: unset it for that"
         );

@@ -395,7 +395,7 @@ pub fn run(bundles: &Path, args: Args) -> Result<()> {
             let ran = if fan_out {
                 // the Python hosts the identity started hold models this process will not use
                 libero_policies::python_host::release_parked_hosts();
-                crate::processes::say_how(processes, args.processes.is_none());
+                crate::processes::say_how(&args.policy, processes, args.processes.is_none());
                 crate::processes::run_children(&args.policy, &pending, processes, &store).await
             } else {
                 let ctx = RunInputs { set: &set, aloha: aloha.as_ref(), specs: &specs, manifest: &manifest, store: &store };

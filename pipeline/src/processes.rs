@@ -96,10 +96,10 @@ pub fn deal(pending: &[u32], n: usize) -> Vec<Vec<u32>> {
 /// A list with the CPU in it, or one GPU twice (replicas sharing a device), stays in one process:
 /// neither has a second GPU to render on.
 pub fn one_per_gpu(policy: &PolicySpec) -> usize {
-    let gpus = policy.model_cuda_devices();
-    let distinct: std::collections::BTreeSet<usize> = gpus.iter().copied().collect();
+    // as many distinct GPUs as listed devices: no CPU in the list, no GPU twice
+    let distinct: std::collections::BTreeSet<usize> = policy.model_cuda_devices().into_iter().collect();
     let listed = policy.model_devices_listed();
-    if listed >= 2 && gpus.len() == listed && distinct.len() == listed { listed } else { 1 }
+    if listed >= 2 && distinct.len() == listed { listed } else { 1 }
 }
 
 /// Said on stderr as the processes start: why N processes where the user did not ask for them

@@ -23,7 +23,8 @@
 set -euo pipefail
 carry=$(realpath "$1"); out=$(realpath -m "$2"); IFS=: read -r jobs trials <<< "${3:-32:12}"
 mkdir -p "$out"
-work=${TMPDIR:-/tmp}/libero-gpu-two; mkdir -p "$work"
+# gpu_end_to_end.sh's folder: the random weights are written once, where its runs read them
+work=${TMPDIR:-/tmp}/libero-gpu-e2e; mkdir -p "$work"
 . scripts/bench/gpu_setup.sh
 
 # The EGL device of CUDA device $1 in a process that sees the GPUs $2 (CUDA_VISIBLE_DEVICES; default $1),

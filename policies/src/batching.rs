@@ -61,6 +61,41 @@ pub struct Request<O = Observation> {
 /// A model's host-side preparation of one query (image preprocessing), run by the asking worker.
 pub type Preparer<O = Observation> = Arc<dyn Fn(&O) -> Result<Box<dyn Any + Send>, String> + Send + Sync>;
 
+/// One forward over the requests whose worker prepared their inputs (a `P`, made by the model's
+/// [`BatchModel::preparer`]), answered in the requests' order. A request without them fails alone
+/// and the rest share the forward; a forward that fails fails each of them with its error.
+/// `query` makes a request's input to the forward from its `P` and instruction; `answer` makes an
+/// episode's actions from its prediction.
+pub fn forward_prepared<'a, P: 'static, O, Q, R, A>(
+    requests: &'a [Request<O>],
+    query: impl Fn(&'a P, &'a str) -> Q,
+    forward: impl FnOnce(&[Q]) -> Result<Vec<R>, String>,
+    answer: impl Fn(R) -> Result<Vec<A>, String>,
+) -> Vec<Result<Vec<A>, String>> {
+    let prepared: Vec<Result<&'a P, String>> = requests
+        .iter()
+        .map(|r| {
+            r.prepared
+                .as_ref()
+                .and_then(|p| p.downcast_ref::<P>())
+                .ok_or_else(|| "the worker sent no prepared inputs".to_string())
+        })
+        .collect();
+    let ready: Vec<Q> =
+        prepared.iter().zip(requests).filter_map(|(p, r)| p.as_ref().ok().map(|p| query(p, &r.instruction))).collect();
+    let mut predictions = match forward(&ready) {
+        Ok(p) => p.into_iter(),
+        Err(e) => return prepared.into_iter().map(|p| Err(p.err().unwrap_or_else(|| e.clone()))).collect(),
+    };
+    prepared
+        .into_iter()
+        .map(|p| {
+            p?;
+            answer(predictions.next().ok_or_else(|| "the batch returned too few predictions".to_string())?)
+        })
+        .collect()
+}
+
 /// A model that predicts an action chunk for each of several (instruction, observation) pairs
 /// in one call; `O` and `A` are the benchmark's observation and action (LIBERO's by default).
 pub trait BatchModel<O = Observation, A = Action>: Send + 'static {
@@ -651,6 +686,51 @@ impl AlohaPolicy for BatchedAlohaPolicy {
 mod tests {
     use super::*;
     use std::sync::Barrier;
+
+    /// A request as a worker sends it, with `prepared` as its model's preparer made it (or not).
+    fn prepared_request(instruction: &str, prepared: Option<f64>) -> Request {
+        Request {
+            instruction: instruction.to_string(),
+            episode_seed: 0,
+            obs: Observation::default(),
+            prepared: prepared.map(|x| Box::new(x) as Box<dyn Any + Send>),
+        }
+    }
+
+    #[test]
+    fn a_request_without_prepared_inputs_fails_alone_and_a_failed_forward_fails_the_rest() {
+        let requests =
+            [prepared_request("a", Some(1.0)), prepared_request("b", None), prepared_request("c", Some(3.0))];
+        let mut forwarded = vec![];
+        let answers = forward_prepared(
+            &requests,
+            |x: &f64, instruction| (*x, instruction.to_string()),
+            |ready| {
+                forwarded = ready.to_vec();
+                Ok(ready.iter().map(|(x, _)| x * 10.0).collect())
+            },
+            |y| Ok(vec![[y as f32, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0]]),
+        );
+        // only the prepared requests reach the forward, and each gets its own prediction back
+        assert_eq!(forwarded, vec![(1.0, "a".to_string()), (3.0, "c".to_string())]);
+        assert_eq!(answers[0].as_ref().unwrap()[0][0], 10.0);
+        assert_eq!(answers[1].as_ref().unwrap_err(), "the worker sent no prepared inputs");
+        assert_eq!(answers[2].as_ref().unwrap()[0][0], 30.0);
+
+        let failed: Vec<Result<Vec<Action>, String>> = forward_prepared(
+            &requests,
+            |x: &f64, _| *x,
+            |_| Err::<Vec<f64>, _>("out of memory".to_string()),
+            |_| Ok(vec![]),
+        );
+        let errors: Vec<String> = failed.into_iter().map(|a| a.unwrap_err()).collect();
+        assert_eq!(errors, ["out of memory", "the worker sent no prepared inputs", "out of memory"]);
+
+        let short: Vec<Result<Vec<Action>, String>> =
+            forward_prepared(&requests, |x: &f64, _| *x, |_| Ok(vec![1.0]), |_| Ok(vec![]));
+        assert!(short[0].is_ok());
+        assert_eq!(short[2].as_ref().unwrap_err(), "the batch returned too few predictions");
+    }
 
     #[test]
     fn the_summary_gives_episodes_and_milliseconds_per_forward() {

@@ -5,7 +5,7 @@
 //! `unnorm_key`, gripper [0, 1] → sign → inverted. bf16 on a GPU, fp32 on a CPU.
 
 use super::{OpenVlaModel, OpenVlaPrediction};
-use crate::batching::{BatchModel, Preparer, Request};
+use crate::batching::{BatchModel, Preparer, Request, forward_prepared};
 use crate::models::cpu_fallback::ModelSize;
 use crate::models::{device_and_dtype, files_hash};
 use crate::placement::{ModelDevice, Quantization};
@@ -162,41 +162,14 @@ impl BatchModel for OpenVlaBatchModel {
     }
 
     fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {
-        // Each worker prepared its image ([`Self::preparer`]); a request whose image could not be
-        // prepared fails alone, the rest share the forward.
-        let images: Vec<Result<&RgbImage, String>> = requests
-            .iter()
-            .map(|r| {
-                r.prepared
-                    .as_ref()
-                    .and_then(|p| p.downcast_ref::<RgbImage>())
-                    .ok_or_else(|| "the worker sent no prepared image".to_string())
-            })
-            .collect();
-        let ready: Vec<(&RgbImage, &str)> = images
-            .iter()
-            .zip(requests)
-            .filter_map(|(image, r)| image.as_ref().ok().map(|i| (*i, r.instruction.as_str())))
-            .collect();
-        let mut predictions = match self.model.predict_actions(&ready, self.unnorm_key.as_deref()) {
-            Ok(p) => p.into_iter(),
-            Err(e) => {
-                return images
-                    .iter()
-                    .map(|image| Err(image.as_ref().err().map_or_else(|| e.to_string(), |own| own.to_string())))
-                    .collect();
-            }
-        };
-        images
-            .iter()
-            .map(|image| match image {
-                Err(e) => Err(e.to_string()),
-                Ok(_) => {
-                    let p = predictions.next().ok_or_else(|| "the batch returned too few predictions".to_string())?;
-                    env_action(&p).map(|a| vec![a]).map_err(|e| e.to_string())
-                }
-            })
-            .collect()
+        // Each worker prepared its image ([`Self::preparer`]).
+        let unnorm = self.unnorm_key.as_deref();
+        forward_prepared(
+            requests,
+            |image: &RgbImage, instruction| (image, instruction),
+            |ready| self.model.predict_actions(ready, unnorm).map_err(|e| e.to_string()),
+            |p| env_action(&p).map(|a| vec![a]).map_err(|e| e.to_string()),
+        )
     }
 
     fn camera_size(&self) -> Option<u32> {

@@ -9,7 +9,7 @@
 //! fp32 on a CPU.
 
 use super::{NUM_ACTIONS_CHUNK, OftModel, OftPrediction, OftQuery, PROPRIO_DIM};
-use crate::batching::{BatchModel, Preparer, Request};
+use crate::batching::{BatchModel, Preparer, Request, forward_prepared};
 use crate::chunking::ActionChunker;
 use crate::models::cpu_fallback::ModelSize;
 use crate::models::{device_and_dtype, files_hash};
@@ -202,37 +202,14 @@ impl BatchModel for OftBatchModel {
     }
 
     fn predict_batch(&mut self, requests: &[Request]) -> Vec<Result<Vec<Action>, String>> {
-        let prepared: Vec<Result<&Prepared, String>> = requests
-            .iter()
-            .map(|r| {
-                r.prepared
-                    .as_ref()
-                    .and_then(|p| p.downcast_ref::<Prepared>())
-                    .ok_or_else(|| "the worker sent no prepared inputs".to_string())
-            })
-            .collect();
-        let ready: Vec<OftQuery> = prepared
-            .iter()
-            .zip(requests)
-            .filter_map(|(p, r)| p.as_ref().ok().map(|p| query(p, &r.instruction)))
-            .collect();
-        let mut predictions = match self.model.predict_chunks(&ready, self.unnorm_key.as_deref()) {
-            Ok(p) => p.into_iter(),
-            Err(e) => {
-                let e = rename(e).to_string();
-                return prepared.iter().map(|p| Err(p.as_ref().err().cloned().unwrap_or_else(|| e.clone()))).collect();
-            }
-        };
-        prepared
-            .iter()
-            .map(|p| match p {
-                Err(e) => Err(e.clone()),
-                Ok(_) => {
-                    let p = predictions.next().ok_or_else(|| "the batch returned too few predictions".to_string())?;
-                    Ok(env_chunk(&p))
-                }
-            })
-            .collect()
+        // Each worker prepared its images and state ([`Self::preparer`]).
+        let unnorm = self.unnorm_key.as_deref();
+        forward_prepared(
+            requests,
+            query,
+            |ready| self.model.predict_chunks(ready, unnorm).map_err(|e| rename(e).to_string()),
+            |p| Ok(env_chunk(&p)),
+        )
     }
 
     fn camera_size(&self) -> Option<u32> {

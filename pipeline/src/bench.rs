@@ -90,6 +90,11 @@ pub struct RenderArgs {
     /// (how runs rendered before the GL threads), to compare.
     #[arg(long)]
     context_per_thread: bool,
+    /// Render this one camera instead of the agentview + wrist pair (through the GL threads, as
+    /// `--threads` does, also with one thread): `agentview` is all OpenVLA sees, so its GPU time
+    /// is what a query of OpenVLA costs a model on the same GPU.
+    #[arg(long, value_parser = clap::builder::PossibleValuesParser::new(crate::media::CAMERAS))]
+    camera: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -184,7 +189,7 @@ fn render(bundles: &Path, args: RenderArgs) -> Result<()> {
     use libero_sim::gl::GlContext;
     use libero_sim::render::{Quality, RenderOptions};
     let set = BundleSet::open(bundles)?;
-    if args.threads > 1 {
+    if args.threads > 1 || args.camera.is_some() {
         return render_threads(&set, &args);
     }
     let gl = std::rc::Rc::new(GlContext::new()?);
@@ -265,8 +270,10 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
         }
         Ok(1000.0 * t0.elapsed().as_secs_f64() / f64::from(frames))
     };
+    // the cameras of one "pair": both, or the one `--camera` names
+    let cameras: Vec<&str> = args.camera.as_deref().map_or(crate::media::CAMERAS.to_vec(), |c| vec![c]);
     let pair = |env: &mut LiberoEnv, renderer: &mut SceneRenderer| -> Result<Vec<Vec<u8>>> {
-        crate::media::CAMERAS.iter().map(|cam| Ok(env.render(renderer, cam, size, size)?.rgb)).collect()
+        cameras.iter().map(|cam| Ok(env.render(renderer, cam, size, size)?.rgb)).collect()
     };
     // Per thread: ms per pair, the device, and whether its last pair through the GL thread equals
     // the pair a context of its own renders (`None` where it renders on its own context).
@@ -330,15 +337,19 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     } else {
         "a GL thread each"
     };
+    let (rendered, unit) = match &args.camera {
+        None => ("camera pairs".to_string(), "pair"),
+        Some(camera) => (format!("{camera} frames (no pairs)"), "frame"),
+    };
     println!(
-        "{threads} threads of one process ({how}), {frames} camera pairs each ({size}x{size}, task 0 of {suite}): \
-         ms per pair min {min:.1}, median {median:.1}, max {max:.1}; {all:.0} pairs/s in all; threads per (EGL \
+        "{threads} threads of one process ({how}), {frames} {rendered} each ({size}x{size}, task 0 of {suite}): \
+         ms per {unit} min {min:.1}, median {median:.1}, max {max:.1}; {all:.0} {unit}s/s in all; threads per (EGL \
          device, CUDA device): {devices:?}"
     );
     if checked > 0 {
         // the same check as tests/render.rs, on whatever GPU this runs
         println!(
-            "threads whose last pair equals, bit for bit, the pair a GL context of their own renders: {equal} of {checked}"
+            "threads whose last {unit} equals, bit for bit, the {unit} a GL context of their own renders: {equal} of {checked}"
         );
         if equal < checked {
             bail!(

@@ -61,11 +61,12 @@ Examples:
 const RENDER_EXAMPLES: &str = "\
 Examples:
   pipeline bench render --python none
-  pipeline bench render --threads 4 --frames 50 --python none";
+  pipeline bench render --threads 4 --frames 50 --python none
+  pipeline bench render --threads 32 --frames 150 --camera agentview --python none";
 
 #[derive(clap::Args)]
 pub struct RenderArgs {
-    /// Camera pairs rendered per measurement.
+    /// Camera pairs (with `--camera`, that camera's frames) rendered per measurement.
     #[arg(long, default_value_t = 30)]
     frames: u32,
     /// Camera size in pixels.
@@ -79,11 +80,10 @@ pub struct RenderArgs {
     python: PathBuf,
     /// Threads rendering at once in this process, as a run's workers do (through GL threads,
     /// `libero_sim::gl_thread`: the GPU's one shared thread, or one each on the CPU or with
-    /// `LIBERO_GL_THREADS=per-worker`):
-    /// with more than one, each renders `--frames`
-    /// agentview + wrist pairs of the first suite's task 0 at reference quality, and the spread
-    /// of their ms per pair and the pairs/s of all are printed instead (compare with as many
-    /// processes of one thread).
+    /// `LIBERO_GL_THREADS=per-worker`): with more than one, each renders `--frames` agentview +
+    /// wrist pairs (or `--camera`'s frames) of the first suite's task 0 at reference quality, and
+    /// the spread of their ms per pair and the pairs/s of all are printed instead (compare with as
+    /// many processes of one thread).
     #[arg(long, default_value_t = 1)]
     threads: usize,
     /// With `--threads`: each thread makes a GL context of its own and renders on it itself
@@ -92,7 +92,8 @@ pub struct RenderArgs {
     context_per_thread: bool,
     /// Render this one camera instead of the agentview + wrist pair (through the GL threads, as
     /// `--threads` does, also with one thread): `agentview` is all OpenVLA sees, so its GPU time
-    /// is what a query of OpenVLA costs a model on the same GPU.
+    /// is what a query of OpenVLA costs a model on the same GPU. Like `--threads`, it measures the
+    /// first of `--suites` and no reference (`--python` is not used).
     #[arg(long, value_parser = clap::builder::PossibleValuesParser::new(crate::media::CAMERAS))]
     camera: Option<String>,
 }
@@ -339,7 +340,7 @@ fn render_threads(set: &BundleSet, args: &RenderArgs) -> Result<()> {
     };
     let (rendered, unit) = match &args.camera {
         None => ("camera pairs".to_string(), "pair"),
-        Some(camera) => (format!("{camera} frames (no pairs)"), "frame"),
+        Some(camera) => (format!("{camera} frames (that camera alone)"), "frame"),
     };
     println!(
         "{threads} threads of one process ({how}), {frames} {rendered} each ({size}x{size}, task 0 of {suite}): \

@@ -29,7 +29,7 @@ for camera in ${CAMERAS:-pair}; do
     # the rendering: the longest run of samples above 50% (the GPU idles while the bench loads its
     # bundles, and works in bursts while it compares pixels after, each thread on a context of its own)
     awk -F', ' '{u = $2 + 0; if (u > 50) { if (!len) { s = 0 } len++; s += u; if (len > best) { best = len; mean = s / len } } else len = 0}
-      END { if (!best) { print "threads " t ": no busy samples"; exit }
+      END { if (!best) { print c ", threads " t ": no busy samples"; exit }
             printf "%s, threads %s: utilization.gpu mean %.1f%% over the longest run of samples above 50%%: %d of 100 ms\n", c, t, mean, best }' \
       c="$camera" t="$threads" "$out/util-$tag.csv" | tee -a "$out/summary.txt"
   done

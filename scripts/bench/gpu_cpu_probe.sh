@@ -18,7 +18,7 @@ scripts/bench/gpu_end_to_end.sh "$carry" "$out/$label" "$spec" > "$out/$label.tx
 kill $probe $vm 2>/dev/null || true
 run=$(ls -d "$out/$label"/*/ | head -1)
 P=${TMPDIR:-/tmp}/libero-gpu-e2e/pipeline
-export LD_LIBRARY_PATH=$(python3 -c 'import os, torch; print(os.path.join(os.path.dirname(torch.__file__), "lib"))'):$carry/lib
+export LD_LIBRARY_PATH=$(python3 -c 'import os, torch; print(os.path.join(os.path.dirname(torch.__file__), "lib"))'):${TMPDIR:-/tmp}/libero-gpu-e2e/lib
 "$P" sql --run "$run" "SELECT forward_batch / 8 * 8 AS batch_from, COUNT(*) AS forwards, AVG(forward_ms) AS ms FROM (SELECT DISTINCT forward_id, forward_batch, forward_ms FROM steps WHERE forward_id IS NOT NULL) GROUP BY 1 ORDER BY 1" > "$out/$label.batches.txt" 2>&1 || true
 for f in "$out/$label".top*.txt; do
   echo "== $f"; head -5 "$f"

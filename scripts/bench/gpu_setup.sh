@@ -34,13 +34,19 @@ xz -dc "$carry/pipeline.xz" > "$work/pipeline"; chmod +x "$work/pipeline"
 if [ -f "$carry/openvla-bench.xz" ]; then
   xz -dc "$carry/openvla-bench.xz" > "$work/openvla-bench"; chmod +x "$work/openvla-bench"; BENCH="$work/openvla-bench"
 fi
+mkdir -p "$work/lib"
+if [ -f "$carry/libmujoco.so.3.3.7.xz" ]; then
+  xz -dc "$carry/libmujoco.so.3.3.7.xz" > "$work/lib/libmujoco.so.3.3.7"
+else
+  cp "$carry"/lib/* "$work/lib/"  # a carry made before libmujoco travelled compressed
+fi
 mkdir -p "$work/bundles"; xz -dc "$carry/bundles.tar.xz" | tar -xf - -C "$work/bundles"
 (cd "$work/bundles" && xargs -r mkdir -p < dirs.txt)
 
 # libtorch from the machine's torch (the version tch was built against), CUDA's libraries beside it
 torch_lib=$(python3 -c 'import os, torch; print(os.path.join(os.path.dirname(torch.__file__), "lib"))')
 nv_libs=$(python3 -c 'import glob, os, torch; r = os.path.dirname(os.path.dirname(torch.__file__)); print(":".join(sorted(glob.glob(os.path.join(r, "nvidia", "*", "lib")) + glob.glob(os.path.join(r, "nvidia", "cu*", "lib")))))')
-export LD_LIBRARY_PATH="$torch_lib:$nv_libs:$carry/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}${MESA:+:$MESA/lib}"
+export LD_LIBRARY_PATH="$torch_lib:$nv_libs:$work/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}${MESA:+:$MESA/lib}"
 # libtorch's CUDA backend: the binary loads it at start from here (no LD_PRELOAD); the folders on
 # LD_LIBRARY_PATH serve the CPU libraries and NVRTC for our kernels
 export LIBERO_TORCH_CUDA_LIB="$torch_lib"

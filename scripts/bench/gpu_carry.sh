@@ -16,7 +16,7 @@ target=${CARGO_TARGET_DIR:-target}
 strip -o "$carry/pipeline" "$target/release/pipeline"; xz -T0 -9 -f "$carry/pipeline"
 bench=$(ls -t "$target"/release/deps/openvla-* 2>/dev/null | grep -v '\.d$' | head -1 || true)
 if [ -n "$bench" ]; then strip -o "$carry/openvla-bench" "$bench"; xz -T0 -9 -f "$carry/openvla-bench"; fi
-# libmujoco compressed (5.1 MB to ~1.3): with it the bench binary fits beside the pipeline;
+# libmujoco compressed (5.1 MB to ~1.5): with it the bench binary fits beside the pipeline;
 # gpu_setup.sh unpacks it into $work/lib
 rm -rf "$carry/lib"; xz -T0 -9 -c third_party/mujoco-3.3.7/lib/libmujoco.so.3.3.7 > "$carry/libmujoco.so.3.3.7.xz"
 bundles=$(realpath data/bundles)
